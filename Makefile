@@ -1,0 +1,31 @@
+# Two entry points: `make demo` and `make test`. Both create .venv on first use and are
+# idempotent. TORCH selects the torch pip requirement installed before the package; a CUDA
+# user who already manages torch in an active environment runs `pip install -e ".[cuda,dev]"`
+# there instead (pip keeps an installed torch that satisfies `torch>=2.4`).
+PYTHON ?= python3
+VENV ?= .venv
+TORCH ?= torch==2.13.0
+DEMO_OUT ?= demo_out
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test install clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q "$(TORCH)"
+	$(PY) -m pip install -q -e ".[dev]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/cogs demo --out $(DEMO_OUT)
+
+test: $(STAMP)
+	$(VENV)/bin/cogs doctor --warm
+	$(VENV)/bin/pytest -n 2 --durations=15
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT)

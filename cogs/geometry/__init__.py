@@ -1,0 +1,1 @@
+"""Cameras, rotations, splines and planes: pure math shared by every branch."""
