@@ -1,0 +1,53 @@
+"""Body models: the `BodyModel` interface, LBS, and the registry of implementations.
+
+Anny is the default (free, ships its assets). A second implementation (SMPL via smplx)
+registers itself in `MODELS` with its bone count, so scene validation can check pose
+arrays without building the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from cogs.body.base import BodyModel, Canonical
+from cogs.body.lbs import blend_transforms, lbs_gaussians, lbs_points
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    n_bones: int
+    n_shape: int
+    factory: Callable[[], BodyModel]
+
+
+def _anny() -> BodyModel:
+    from cogs.body.anny_body import AnnyBody
+
+    return AnnyBody()
+
+
+MODELS: dict[str, ModelInfo] = {"anny": ModelInfo(n_bones=104, n_shape=6, factory=_anny)}
+
+_instances: dict[str, BodyModel] = {}
+
+
+def load_body_model(name: str = "anny") -> BodyModel:
+    """The named body model, built once per process."""
+    if name not in MODELS:
+        raise KeyError(f"unknown body model {name!r}; known: {', '.join(sorted(MODELS))}")
+    if name not in _instances:
+        _instances[name] = MODELS[name].factory()
+    return _instances[name]
+
+
+__all__ = [
+    "BodyModel",
+    "Canonical",
+    "MODELS",
+    "ModelInfo",
+    "blend_transforms",
+    "lbs_gaussians",
+    "lbs_points",
+    "load_body_model",
+]

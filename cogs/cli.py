@@ -1,0 +1,87 @@
+"""The `cogs` command: one entry point, one sub-command per job.
+
+    cogs synth      write the synthetic benchmark scene
+    cogs check      validate a scene folder, listing every problem
+    cogs demo       the main job: synthesize -> (train -> eval ->) report
+    cogs doctor     what this machine offers cogs (backends, body model, LPIPS weights)
+
+Each sub-command is a dataclass whose fields are its documented options (tyro turns them
+into flags); `run()` does the work. Errors the user can cause are `UserError`s: printed
+as one message, exit status 2, no traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import tyro
+
+from cogs.errors import UserError
+
+
+@dataclass
+class Check:
+    """Validate a scene folder and report every problem at once."""
+
+    scene: Path
+    """Scene folder (the one holding scene.json)."""
+
+    def run(self) -> int:
+        from cogs.data.validate import check_scene
+        from cogs.log import console
+
+        problems = check_scene(self.scene)
+        if problems:
+            console.print(f"[red]{self.scene}: {len(problems)} problem(s)[/red]")
+            for p in problems:
+                console.print(f"  - {p}", markup=False, highlight=False)
+            return 1
+        from cogs.data.scene import load_scene
+
+        s = load_scene(self.scene, validate=False)
+        console.print(
+            f"[green]ok[/green] {self.scene}: {s.n_frames} frames {s.width}x{s.height}, "
+            f"body model {s.body.model}, object {'yes' if s.has_object else 'no'}, "
+            f"{len(s.points_xyz)} points, train/test {len(s.split['train'])}/{len(s.split['test'])}"
+            + (", ground truth" if s.gt is not None else "")
+        )
+        return 0
+
+
+@dataclass
+class Doctor:
+    """Report what this machine offers cogs; `--warm` also builds one-time caches."""
+
+    warm: bool = False
+    """Build the body model's asset cache and compile the CPU kernels now."""
+
+    def run(self) -> int:
+        from cogs.doctor import report
+
+        return report(warm=self.warm)
+
+
+def _commands() -> dict[str, type]:
+    return {"check": Check, "doctor": Doctor}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from cogs.log import console, setup_logging
+
+    setup_logging()
+    cmd = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="cogs")
+    try:
+        code = cmd.run()
+    except UserError as e:
+        console.print(f"[red]error:[/red] {e}", highlight=False)
+        return 2
+    except KeyboardInterrupt:
+        console.print("[yellow]interrupted[/yellow]")
+        return 130
+    return int(code or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
