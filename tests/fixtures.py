@@ -1,0 +1,44 @@
+"""Small scenes and helpers the tests generate with the project's own writers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from cogs.data.scene import BodyTrack, CameraTrack, ObjectTrack, PlaneSpec, Scene, default_frame_ids, save_scene
+from cogs.geometry.camera import intrinsics_from_fov, look_at
+
+
+def make_tiny_scene(root: Path, n_frames: int = 6, width: int = 40, height: int = 30, seed: int = 0) -> Path:
+    """A valid scene: random images, disc masks, a camera arc, zero Anny poses, a box track."""
+    rng = np.random.default_rng(seed)
+    ids = default_frame_ids(n_frames)
+    K = intrinsics_from_fov(width, height, 55.0)
+    w2c = np.stack([look_at([2.5 * np.cos(a), 2.5 * np.sin(a), 1.2], [0, 0, 0.9]) for a in np.linspace(-0.4, 0.4, n_frames)])
+    yy, xx = np.mgrid[:height, :width]
+    human = np.stack([(xx - width / 2) ** 2 + (yy - height / 2) ** 2 < (height / 3) ** 2] * n_frames)
+    obj = np.stack([(xx - width / 2 - 8) ** 2 + (yy - height / 2) ** 2 < 16] * n_frames)
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (n_frames, 1))
+    scene = Scene(
+        root=None,
+        name="tiny",
+        width=width,
+        height=height,
+        fps=10.0,
+        frame_ids=ids,
+        split={"train": list(range(1, n_frames)), "test": [0]},
+        cameras=CameraTrack(K=np.tile(K, (n_frames, 1, 1)), world_to_camera=w2c),
+        body=BodyTrack(
+            model="anny",
+            shape=np.full(6, 0.5, dtype=np.float32),
+            pose=np.zeros((n_frames, 104, 3), dtype=np.float32),
+            transl=np.tile([0.0, 0.0, 0.87], (n_frames, 1)).astype(np.float32),
+        ),
+        object=ObjectTrack(centre=np.zeros(3), quats=quats, translations=np.tile([0.3, -0.2, 0.9], (n_frames, 1))),
+        points_xyz=rng.uniform(-2, 2, (50, 3)).astype(np.float32),
+        points_rgb=rng.integers(0, 255, (50, 3), dtype=np.uint8),
+        planes=[PlaneSpec(np.array([0.0, 0.0, 1.0]), 0.0, "floor")],
+    )
+    scene.set_pixels(rng.integers(0, 255, (n_frames, height, width, 3), dtype=np.uint8), human, obj)
+    return save_scene(scene, root)
