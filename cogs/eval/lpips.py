@@ -52,6 +52,9 @@ _TAP_INDICES = (1, 4, 7, 9, 11)  # the ReLUs after them
 # AlexNet's first two max-pools need at least 3x3 inputs: side >= 31 pixels.
 LPIPS_MIN_SIDE = 31
 
+# Indirection so tests can fake an installed lpips package without patching importlib.
+_find_spec = importlib.util.find_spec
+
 _SHIFT = (-0.030, -0.088, -0.188)
 _SCALE = (0.458, 0.448, 0.450)
 
@@ -161,7 +164,7 @@ def _find_linear(explicit: str | os.PathLike | None) -> tuple[Path | None, str]:
     try:
         # find_spec on a top-level name locates the package without executing it (importing
         # lpips would import torchvision, which fails here).
-        spec = importlib.util.find_spec("lpips")
+        spec = _find_spec("lpips")
     except (ImportError, ValueError) as exc:
         spec = None
         why = f"locating the lpips package failed ({exc})"
@@ -172,7 +175,8 @@ def _find_linear(explicit: str | os.PathLike | None) -> tuple[Path | None, str]:
             p = Path(root) / "weights" / "v0.1" / "alex.pth"
             if p.is_file():
                 return p, ""
-        why = f"the installed lpips package at {list(spec.submodule_search_locations)} has no weights/v0.1/alex.pth"
+        where = list(spec.submodule_search_locations)
+        why = f"the installed lpips package at {where} has no weights/v0.1/alex.pth"
     return None, f"LPIPS linear weights not found: {why} and ${ENV_LINEAR} is not set"
 
 
@@ -198,7 +202,8 @@ def _backbone_state(sd: dict[str, Tensor], path: Path) -> dict[str, Tensor]:
         )
         if m and int(m.group(1)) in _CONV_INDICES:
             out[f"features.{m.group(1)}.{m.group(2)}"] = value
-    missing = [f"features.{i}.{k}" for i in _CONV_INDICES for k in ("weight", "bias") if f"features.{i}.{k}" not in out]
+    wanted = [f"features.{i}.{k}" for i in _CONV_INDICES for k in ("weight", "bias")]
+    missing = [k for k in wanted if k not in out]
     if missing:
         raise ValueError(f"{path} lacks AlexNet keys {missing[:3]}{'...' if len(missing) > 3 else ''}")
     return out
@@ -215,7 +220,9 @@ def _linear_state(sd: dict[str, Tensor], path: Path) -> dict[str, Tensor]:
 
 
 @functools.lru_cache(maxsize=4)
-def _load_cached(backbone: str, b_stamp: tuple, linear: str, l_stamp: tuple) -> tuple[LPIPSAlex | None, str]:
+def _load_cached(
+    backbone: str, b_stamp: tuple, linear: str, l_stamp: tuple
+) -> tuple[LPIPSAlex | None, str]:
     # The stamps (mtime, size) are part of the key so a replaced file is reloaded.
     del b_stamp, l_stamp
     model = LPIPSAlex()

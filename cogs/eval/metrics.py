@@ -264,7 +264,10 @@ def image_metrics(
         note(f"ssim is null: image {h}x{w} is smaller than the {SSIM_WINDOW_SIZE}x{SSIM_WINDOW_SIZE} window")
     if with_lpips:
         if min(h, w) < LPIPS_MIN_SIDE:
-            note(f"lpips is null: image {h}x{w} is smaller than AlexNet's minimum {LPIPS_MIN_SIDE}x{LPIPS_MIN_SIDE}")
+            note(
+                f"lpips is null: image {h}x{w} is smaller than AlexNet's minimum "
+                f"{LPIPS_MIN_SIDE}x{LPIPS_MIN_SIDE}"
+            )
         else:
             value = lpips_alex(p, g)
             if value is None:
