@@ -124,8 +124,8 @@ def tile_ranges(means2d: Tensor, radii: Tensor, width: int, height: int) -> Tens
     """[N, 4] int32 (tx0, tx1, ty0, ty1): half-open tile ranges touched by each square
     ``[m - r, m + r]`` (gsplat's isect_tiles rule); empty (0, 0, 0, 0) when culled."""
     tiles_x, tiles_y = tile_grid(width, height)
-    m = means2d.detach().to(torch.float32) / TILE_SIZE
-    r = radii.to(torch.float32)[:, None] / TILE_SIZE
+    m = means2d.detach() / TILE_SIZE
+    r = radii.to(m.dtype)[:, None] / TILE_SIZE
     lo = torch.floor(m - r)
     hi = torch.ceil(m + r)
     lim = m.new_tensor([tiles_x, tiles_y])
