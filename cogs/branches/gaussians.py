@@ -1,0 +1,192 @@
+"""`GaussianSet`: raw parameters of N 3D Gaussians, their activations, and PLY I/O.
+
+Parameters are stored raw, as 3DGS stores them, in a `torch.nn.ParameterDict`:
+
+    means      [N, 3]      world (or branch-canonical) metres
+    quats      [N, 4]      wxyz, any norm (normalised on activation)
+    scales     [N, 3]      log of the standard deviations, metres
+    opacities  [N]         logit
+    sh0        [N, 1, 3]   SH DC coefficient  (rgb = SH_C0 * sh0 + 0.5)
+    shN        [N, K-1, 3] higher SH bands, K = (sh_degree + 1)^2 (absent for degree 0)
+
+Density control (cogs.train.density) edits this dict and the matching optimizer states
+in place; everything else reads the activated views below. The PLY layout is the one
+every 3DGS viewer opens: x, y, z, nx, ny, nz, f_dc_0..2, f_rest_*, opacity, scale_0..2,
+rot_0..3 (binary little-endian floats, raw logit/log values, f_rest channel-major).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from cogs.geometry.rotations import quat_normalize
+from cogs.render.sh import SH_C0, num_sh_bases
+
+PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh0", "shN")
+
+
+def rgb_to_sh0(rgb: Tensor) -> Tensor:
+    """[N, 3] colour in [0, 1] -> [N, 1, 3] DC coefficient."""
+    return ((rgb - 0.5) / SH_C0)[:, None, :]
+
+
+def sh0_to_rgb(sh0: Tensor) -> Tensor:
+    return sh0[:, 0, :] * SH_C0 + 0.5
+
+
+def inverse_sigmoid(x: Tensor) -> Tensor:
+    x = x.clamp(1e-6, 1 - 1e-6)
+    return torch.log(x / (1 - x))
+
+
+class GaussianSet(torch.nn.Module):
+    """N Gaussians' raw, trainable parameters (see module docstring for the layout)."""
+
+    def __init__(self, params: dict[str, Tensor], sh_degree: int = 0):
+        super().__init__()
+        n = params["means"].shape[0]
+        expected = {"means": (n, 3), "quats": (n, 4), "scales": (n, 3), "opacities": (n,), "sh0": (n, 1, 3)}
+        for k, shape in expected.items():
+            assert tuple(params[k].shape) == shape, (k, tuple(params[k].shape), shape)
+        self.sh_degree = sh_degree
+        K = num_sh_bases(sh_degree)
+        if K > 1:
+            assert tuple(params["shN"].shape) == (n, K - 1, 3), params["shN"].shape
+        self.params = torch.nn.ParameterDict(
+            {k: torch.nn.Parameter(v.detach().clone().float()) for k, v in params.items() if k in PARAM_NAMES and (k != "shN" or K > 1)}
+        )
+
+    # -- construction -----------------------------------------------------------------
+    @classmethod
+    def from_points(
+        cls,
+        xyz: Tensor,  # [N, 3]
+        rgb: Tensor,  # [N, 3] in [0, 1]
+        scales: Tensor,  # [N, 3] or [N] standard deviations, metres
+        opacity: float | Tensor = 0.1,
+        quats: Tensor | None = None,
+        sh_degree: int = 0,
+    ) -> "GaussianSet":
+        n = xyz.shape[0]
+        if scales.ndim == 1:
+            scales = scales[:, None].expand(n, 3)
+        if quats is None:
+            quats = torch.zeros(n, 4)
+            quats[:, 0] = 1.0
+        op = opacity if isinstance(opacity, Tensor) else torch.full((n,), float(opacity))
+        params = {
+            "means": xyz.float(),
+            "quats": quats.float(),
+            "scales": torch.log(scales.float().clamp_min(1e-7)),
+            "opacities": inverse_sigmoid(op.float()),
+            "sh0": rgb_to_sh0(rgb.float()),
+        }
+        K = num_sh_bases(sh_degree)
+        if K > 1:
+            params["shN"] = torch.zeros(n, K - 1, 3)
+        return cls(params, sh_degree)
+
+    @classmethod
+    def empty(cls, sh_degree: int = 0) -> "GaussianSet":
+        z = torch.zeros(0, 3)
+        return cls.from_points(z, z, z, sh_degree=sh_degree)
+
+    # -- views ------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return int(self.params["means"].shape[0])
+
+    @property
+    def means(self) -> Tensor:
+        return self.params["means"]
+
+    @property
+    def quats(self) -> Tensor:
+        return quat_normalize(self.params["quats"])
+
+    @property
+    def scales(self) -> Tensor:
+        return torch.exp(self.params["scales"])
+
+    @property
+    def opacities(self) -> Tensor:
+        return torch.sigmoid(self.params["opacities"])
+
+    @property
+    def sh(self) -> Tensor:
+        """[N, K, 3] all SH coefficients."""
+        if "shN" in self.params:
+            return torch.cat([self.params["sh0"], self.params["shN"]], dim=1)
+        return self.params["sh0"]
+
+    @property
+    def rgb(self) -> Tensor:
+        """View-independent colour (DC term only), [N, 3]."""
+        return sh0_to_rgb(self.params["sh0"]).clamp_min(0.0)
+
+    def select(self, index: Tensor) -> "GaussianSet":
+        """A detached copy of the Gaussians at `index` (bool mask or indices)."""
+        return GaussianSet({k: v.detach()[index] for k, v in self.params.items()}, self.sh_degree)
+
+    @staticmethod
+    def cat(sets: list["GaussianSet"]) -> "GaussianSet":
+        degree = max(s.sh_degree for s in sets)
+        K = num_sh_bases(degree)
+        out: dict[str, list[Tensor]] = {k: [] for k in PARAM_NAMES}
+        for s in sets:
+            for k in ("means", "quats", "scales", "opacities", "sh0"):
+                out[k].append(s.params[k].detach())
+            if K > 1:
+                rest = s.params["shN"].detach() if "shN" in s.params else torch.zeros(len(s), 0, 3)
+                pad = torch.zeros(len(s), K - 1 - rest.shape[1], 3)
+                out["shN"].append(torch.cat([rest, pad], dim=1))
+        return GaussianSet({k: torch.cat(v) for k, v in out.items() if v}, degree)
+
+    # -- PLY ----------------------------------------------------------------------------
+    def save_ply(self, path: str | Path) -> None:
+        """Write the standard 3DGS PLY (binary little-endian, raw values)."""
+        from plyfile import PlyData, PlyElement
+
+        n = len(self)
+        p = {k: v.detach().cpu().float().numpy() for k, v in self.params.items()}
+        rest = p["shN"].transpose(0, 2, 1).reshape(n, -1) if "shN" in p else np.zeros((n, 0), np.float32)
+        names = (
+            ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(rest.shape[1])]
+            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+        )
+        cols = np.concatenate(
+            [p["means"], np.zeros((n, 3), np.float32), p["sh0"][:, 0, :], rest,
+             p["opacities"][:, None], p["scales"], p["quats"]],
+            axis=1,
+        ).astype(np.float32)
+        data = np.empty(n, dtype=[(name, "<f4") for name in names])
+        for i, name in enumerate(names):
+            data[name] = cols[:, i]
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        PlyData([PlyElement.describe(data, "vertex")], text=False, byte_order="<").write(str(path))
+
+    @classmethod
+    def load_ply(cls, path: str | Path) -> "GaussianSet":
+        from plyfile import PlyData
+
+        v = PlyData.read(str(path))["vertex"]
+        names = v.data.dtype.names
+        col = lambda *ks: np.stack([np.asarray(v[k], dtype=np.float32) for k in ks], axis=1)  # noqa: E731
+        n_rest = len([k for k in names if k.startswith("f_rest_")])
+        assert n_rest % 3 == 0, n_rest
+        degree = int(round(np.sqrt(n_rest // 3 + 1))) - 1
+        params = {
+            "means": torch.from_numpy(col("x", "y", "z")),
+            "quats": torch.from_numpy(col("rot_0", "rot_1", "rot_2", "rot_3")),
+            "scales": torch.from_numpy(col("scale_0", "scale_1", "scale_2")),
+            "opacities": torch.from_numpy(np.asarray(v["opacity"], dtype=np.float32)),
+            "sh0": torch.from_numpy(col("f_dc_0", "f_dc_1", "f_dc_2"))[:, None, :],
+        }
+        if n_rest:
+            rest = col(*[f"f_rest_{i}" for i in range(n_rest)]).reshape(-1, 3, n_rest // 3)
+            params["shN"] = torch.from_numpy(rest.transpose(0, 2, 1).copy())
+        return cls(params, degree)

@@ -1,0 +1,337 @@
+"""The human branch: canonical Gaussians posed by linear blend skinning of a body model.
+
+Pieces (CoGS, with the field of HUGS):
+
+* `sample_human_seed` — the canonical seed G^H_0: Gaussians spread area-uniformly on the
+  body model's zero-pose surface, flat discs tangent to it, sized from the sample spacing,
+  with barycentric skinning weights. The anchor loss pulls weakly observed Gaussians back
+  to it.
+* `TriplaneField` — three feature planes over the canonical body box, sampled bilinearly
+  at each canonical Gaussian and decoded by small MLPs into residuals of colour, opacity,
+  scale, rotation and skinning weights over the seed. Every head's last layer starts at
+  zero, so the untrained field reproduces the seed exactly.
+* `HumanBranch` — the trainable module: free canonical positions, the field, optional
+  per-frame body-pose refinements, and the per-Gaussian visibility scores v_i used by the
+  anchor loss (w_i = 1 - v_i).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from cogs.body import BodyModel, lbs_gaussians
+from cogs.branches.gaussians import inverse_sigmoid
+from cogs.geometry.rotations import (
+    axis_angle_to_quat,
+    quat_geodesic_angle,
+    quat_multiply,
+    quat_normalize,
+    rotmat_from_two_vectors,
+    rotmat_to_quat,
+)
+
+
+@dataclass
+class HumanConfig:
+    """Human-branch hyper-parameters (defaults: CoGS/HUGS values scaled for CPU)."""
+
+    n_gaussians: int = 20_000
+    """Seed size: Gaussians sampled on the canonical body surface (paper: 20k-100k)."""
+    seed_opacity: float = 0.8
+    """Initial opacity of the seed."""
+    seed_thickness: float = 0.3
+    """Seed discs' extent along the surface normal, relative to their tangent extent."""
+    seed_scale_factor: float = 0.6
+    """Tangent standard deviation as a fraction of the mean sample spacing."""
+    triplane_resolution: int = 128
+    triplane_channels: int = 16
+    triplane_padding_m: float = 0.1
+    """Margin around the canonical body box covered by the triplane."""
+    mlp_width: int = 64
+    max_log_scale_change: float = 1.5
+    """Bound on the decoded log-scale residual (the field cannot grow a Gaussian by more
+    than e^1.5 = 4.5x nor shrink it more)."""
+    per_gaussian_color: bool = True
+    """Add a free per-Gaussian colour residual to the field's colour (sharper texture for
+    the same triplane resolution; the field alone is the HUGS formulation)."""
+    refine_pose: bool = True
+    """Learn per-frame corrections of the input body pose and translation."""
+    visibility_epsilon: float = 0.01
+    """chi_it needs the Gaussian's summed compositing weight inside the human mask (in
+    pixel units) above this."""
+
+
+@dataclass
+class HumanSeed:
+    """The canonical seed G^H_0 (all float32, activated values)."""
+
+    means: Tensor  # [N, 3] canonical
+    quats: Tensor  # [N, 4] wxyz, z axis along the surface normal
+    scales: Tensor  # [N, 3] metres
+    opacities: Tensor  # [N]
+    colors: Tensor  # [N, 3]
+    weights: Tensor  # [N, J] skinning weights
+    normals: Tensor  # [N, 3]
+    face_index: Tensor = field(default_factory=lambda: torch.zeros(0, dtype=torch.long))  # [N]
+
+
+def sample_human_seed(body: BodyModel, shape: Tensor | None, cfg: HumanConfig, seed: int = 0) -> HumanSeed:
+    """Area-uniform samples on the canonical surface with barycentric skinning weights."""
+    can = body.canonical(shape)
+    V, Fc = can.vertices.double(), can.faces
+    a, b, c = V[Fc[:, 0]], V[Fc[:, 1]], V[Fc[:, 2]]
+    cross = torch.linalg.cross(b - a, c - a, dim=-1)
+    area = 0.5 * cross.norm(dim=-1)
+    g = torch.Generator().manual_seed(seed)
+    n = cfg.n_gaussians
+    face = torch.multinomial(area / area.sum(), n, replacement=True, generator=g)
+    r1, r2 = torch.rand(n, generator=g, dtype=torch.float64), torch.rand(n, generator=g, dtype=torch.float64)
+    s = r1.sqrt()
+    bary = torch.stack([1 - s, s * (1 - r2), s * r2], dim=1)  # uniform on the triangle
+    tri = Fc[face]
+    means = (bary[:, :, None] * V[tri]).sum(1)
+    normals = F.normalize(cross[face], dim=-1)
+    weights = (bary[:, :, None] * can.weights.double()[tri]).sum(1)
+    weights = weights / weights.sum(1, keepdim=True)
+    spacing = float(torch.sqrt(area.sum() / n))
+    tangent = cfg.seed_scale_factor * spacing
+    scales = torch.tensor([tangent, tangent, cfg.seed_thickness * tangent]).expand(n, 3)
+    R = rotmat_from_two_vectors(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(n, 3), normals)
+    return HumanSeed(
+        means=means.float(),
+        quats=rotmat_to_quat(R).float(),
+        scales=scales.float().clone(),
+        opacities=torch.full((n,), cfg.seed_opacity),
+        colors=torch.full((n, 3), 0.5),
+        weights=weights.float(),
+        normals=normals.float(),
+        face_index=face,
+    )
+
+
+class TriplaneField(torch.nn.Module):
+    """Triplane features over a canonical box, decoded into residual attributes."""
+
+    def __init__(self, box_min: Tensor, box_max: Tensor, n_bones: int, cfg: HumanConfig):
+        super().__init__()
+        R, C, W = cfg.triplane_resolution, cfg.triplane_channels, cfg.mlp_width
+        self.register_buffer("box_min", box_min.float().clone())
+        self.register_buffer("box_max", box_max.float().clone())
+        self.planes = torch.nn.Parameter(0.1 * torch.randn(3, C, R, R, generator=torch.Generator().manual_seed(0)))
+
+        def mlp(out: int) -> torch.nn.Sequential:
+            net = torch.nn.Sequential(torch.nn.Linear(3 * C, W), torch.nn.ReLU(), torch.nn.Linear(W, out))
+            torch.nn.init.zeros_(net[2].weight)
+            torch.nn.init.zeros_(net[2].bias)
+            return net
+
+        self.appearance = mlp(3)  # colour residual
+        self.geometry = mlp(1 + 3 + 3)  # opacity logit, log-scale, rotation (axis-angle) residuals
+        self.deformation = mlp(n_bones)  # skinning-weight logit residuals
+
+    def features(self, x: Tensor) -> Tensor:
+        """x [N, 3] canonical -> [N, 3C] bilinear samples of the xy, xz and yz planes."""
+        u = 2.0 * (x - self.box_min) / (self.box_max - self.box_min) - 1.0
+        grids = torch.stack([u[:, [0, 1]], u[:, [0, 2]], u[:, [1, 2]]])  # [3, N, 2]
+        f = F.grid_sample(self.planes, grids[:, :, None, :], mode="bilinear", padding_mode="border", align_corners=True)
+        return f[..., 0].permute(2, 0, 1).reshape(x.shape[0], -1)  # [N, 3C]
+
+    def forward(self, x: Tensor) -> dict[str, Tensor]:
+        f = self.features(x)
+        geo = self.geometry(f)
+        return {
+            "color": self.appearance(f),
+            "opacity": geo[:, 0],
+            "log_scale": geo[:, 1:4],
+            "rotation": geo[:, 4:7],
+            "skinning": self.deformation(f),
+        }
+
+
+@dataclass
+class HumanState:
+    """Decoded canonical attributes of every human Gaussian (activated)."""
+
+    means: Tensor  # [N, 3] canonical
+    quats: Tensor  # [N, 4]
+    scales: Tensor  # [N, 3]
+    opacities: Tensor  # [N]
+    colors: Tensor  # [N, 3]
+    weights: Tensor  # [N, J]
+
+
+class HumanBranch(torch.nn.Module):
+    """Canonical human Gaussians, their field, pose refinements and visibility."""
+
+    # Per-Gaussian tensors density control must gather together (name -> kind).
+    PER_GAUSSIAN_PARAMS = ("means", "color_residual")
+    PER_GAUSSIAN_BUFFERS = ("seed_means", "seed_quats", "seed_scales", "seed_opacities", "seed_colors", "seed_weights", "visibility")
+
+    def __init__(
+        self,
+        body: BodyModel,
+        shape: Tensor,
+        seed: HumanSeed,
+        base_pose: Tensor,  # [T, J, 3] input poses
+        base_transl: Tensor,  # [T, 3]
+        train_frames: list[int],
+        cfg: HumanConfig,
+    ):
+        super().__init__()
+        self.body = body
+        self.cfg = cfg
+        self.register_buffer("shape", shape.float().clone())
+        self.means = torch.nn.Parameter(seed.means.clone())
+        self.color_residual = torch.nn.Parameter(torch.zeros_like(seed.colors))
+        self.register_buffer("seed_means", seed.means.clone())
+        self.register_buffer("seed_quats", seed.quats.clone())
+        self.register_buffer("seed_scales", seed.scales.clone())
+        self.register_buffer("seed_opacities", seed.opacities.clone())
+        self.register_buffer("seed_colors", seed.colors.clone())
+        self.register_buffer("seed_weights", seed.weights.clone())
+        self.register_buffer("visibility", torch.zeros(len(seed.means)))
+        pad = cfg.triplane_padding_m
+        self.field = TriplaneField(seed.means.min(0).values - pad, seed.means.max(0).values + pad, body.n_bones, cfg)
+        T = base_pose.shape[0]
+        self.register_buffer("base_pose", base_pose.float().clone())
+        self.register_buffer("base_transl", base_transl.float().clone())
+        self.pose_delta = torch.nn.Parameter(torch.zeros(T, body.n_bones, 3))
+        self.transl_delta = torch.nn.Parameter(torch.zeros(T, 3))
+        mask = torch.zeros(T, dtype=torch.bool)
+        mask[list(train_frames)] = True
+        self.register_buffer("train_mask", mask)
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    # -- canonical attributes ----------------------------------------------------------
+    def decode(self) -> HumanState:
+        """Seed + field residuals at the current canonical positions."""
+        r = self.field(self.means)
+        scales = self.seed_scales * torch.exp(self.cfg.max_log_scale_change * torch.tanh(r["log_scale"] / self.cfg.max_log_scale_change))
+        quats = quat_normalize(quat_multiply(self.seed_quats, axis_angle_to_quat(r["rotation"])))
+        opacities = torch.sigmoid(inverse_sigmoid(self.seed_opacities) + r["opacity"])
+        colors = self.seed_colors + r["color"]
+        if self.cfg.per_gaussian_color:
+            colors = colors + self.color_residual
+        weights = torch.softmax(torch.log(self.seed_weights.clamp_min(1e-8)) + r["skinning"], dim=-1)
+        return HumanState(self.means, quats, scales, opacities, colors.clamp(0.0, 1.0), weights)
+
+    # -- pose --------------------------------------------------------------------------
+    def frame_pose(self, t: int) -> tuple[Tensor, Tensor]:
+        """Body pose [1, J, 3] and translation [1, 3] for frame t, refinements included.
+
+        Held-out frames have no refinement of their own: they take the linear
+        interpolation of the nearest training frames' refinements (so smooth input noise
+        learned on neighbours carries over, and no test image is ever fitted).
+        """
+        if not self.cfg.refine_pose:
+            return self.base_pose[t : t + 1], self.base_transl[t : t + 1]
+        dp, dt = self._refinement(t)
+        return self.base_pose[t : t + 1] + dp, self.base_transl[t : t + 1] + dt
+
+    def _refinement(self, t: int) -> tuple[Tensor, Tensor]:
+        if bool(self.train_mask[t]):
+            return self.pose_delta[t : t + 1], self.transl_delta[t : t + 1]
+        train = torch.nonzero(self.train_mask).flatten()
+        before, after = train[train < t], train[train > t]
+        if len(before) == 0 or len(after) == 0:
+            j = int(after[0] if len(before) == 0 else before[-1])
+            return self.pose_delta[j : j + 1], self.transl_delta[j : j + 1]
+        a, b = int(before[-1]), int(after[0])
+        u = (t - a) / (b - a)
+        return (
+            (1 - u) * self.pose_delta[a : a + 1] + u * self.pose_delta[b : b + 1],
+            (1 - u) * self.transl_delta[a : a + 1] + u * self.transl_delta[b : b + 1],
+        )
+
+    def posed(self, pose: Tensor, transl: Tensor, state: HumanState | None = None) -> HumanState:
+        """Skin the canonical Gaussians into the world for one pose ([1, J, 3], [1, 3])."""
+        state = self.decode() if state is None else state
+        A, _ = self.body.bone_transforms(pose, transl, self.shape)
+        means, quats = lbs_gaussians(state.means, state.quats, state.weights, A[0])
+        return HumanState(means, quats, state.scales, state.opacities, state.colors, state.weights)
+
+    def posed_frame(self, t: int, state: HumanState | None = None) -> HumanState:
+        pose, transl = self.frame_pose(t)
+        return self.posed(pose, transl, state)
+
+    # -- losses --------------------------------------------------------------------------
+    def anchor_loss(self, state: HumanState, lambda_s: float = 1.0, lambda_q: float = 0.1, lambda_a: float = 0.1) -> Tensor:
+        """CoGS visibility-aware anchoring, mean over Gaussians:
+
+        w_i (|mu_i - mu0_i|_1 + lambda_s |s_i - s0_i|_1 + lambda_q d_R(q_i, q0_i)
+        + lambda_a |alpha_i - alpha0_i|), with w_i = 1 - v_i detached.
+        """
+        w = (1.0 - self.visibility).detach()
+        term = (
+            (state.means - self.seed_means).abs().sum(-1)
+            + lambda_s * (state.scales - self.seed_scales).abs().sum(-1)
+            + lambda_q * quat_geodesic_angle(state.quats, self.seed_quats)
+            + lambda_a * (state.opacities - self.seed_opacities).abs()
+        )
+        return (w * term).mean()
+
+    def pose_regularizer(self) -> Tensor:
+        """Keep refinements small and temporally smooth (mean squared)."""
+        d = self.pose_delta[self.train_mask]
+        tr = self.transl_delta[self.train_mask]
+        smooth = (d[1:] - d[:-1]).square().mean() + (tr[1:] - tr[:-1]).square().mean() if len(d) > 1 else d.sum() * 0
+        return d.square().mean() + tr.square().mean() + smooth
+
+
+def visibility_indicator(
+    contribution: Tensor,  # [N] summed compositing weight inside (human mask & not object mask)
+    means2d: Tensor,  # [N, 2] pixel coordinates of the posed centres
+    depth_ok: Tensor,  # [N] bool, in front of the camera
+    mask: np.ndarray | Tensor,  # [H, W] bool: human mask and not object mask
+    epsilon: float,
+) -> Tensor:
+    """chi_it for one frame: inside the human mask, outside the object mask, and a human
+    opacity contribution above epsilon."""
+    mask = torch.as_tensor(mask, dtype=torch.bool)
+    H, W = mask.shape
+    px = means2d.detach().floor().long()
+    inside = (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H) & depth_ok
+    hit = torch.zeros_like(inside)
+    hit[inside] = mask[px[inside, 1], px[inside, 0]]
+    return hit & (contribution > epsilon)
+
+
+def compute_visibility(
+    human: "HumanBranch",
+    frames: list[int],
+    viewmats: Tensor,  # [T, 4, 4]
+    Ks: Tensor,  # [T, 3, 3]
+    width: int,
+    height: int,
+    human_masks: np.ndarray,  # [T, H, W] bool
+    object_masks: np.ndarray,  # [T, H, W] bool
+    backend: str = "auto",
+) -> Tensor:
+    """v_i = (1/|T|) sum_t chi_it over the given training frames (CoGS Sec. visibility).
+
+    The human is rendered alone; its compositing weights are gathered inside
+    (human mask and not object mask) by one backward pass per frame.
+    """
+    from cogs.branches.splatback import splat_statistics
+
+    with torch.no_grad():
+        state = human.decode()
+    counts = torch.zeros(len(human))
+    for t in frames:
+        with torch.no_grad():
+            posed = human.posed_frame(t, state)
+        mask = torch.as_tensor(human_masks[t] & ~object_masks[t])
+        contrib, _, means2d = splat_statistics(
+            posed.means, posed.quats, posed.scales, posed.opacities, viewmats[t], Ks[t],
+            width, height, weight=mask.float(), backend=backend,
+        )
+        depth = (posed.means @ viewmats[t][:3, :3].T + viewmats[t][:3, 3])[:, 2]
+        counts += visibility_indicator(contrib, means2d, depth > 0, mask, human.cfg.visibility_epsilon).float()
+    return counts / max(len(frames), 1)

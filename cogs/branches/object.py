@@ -1,0 +1,189 @@
+"""The object branch: one canonical Gaussian set moved rigidly along a keyframed trajectory.
+
+x_world(tau) = R(q(tau)) (x_canonical - c) + t(tau), with t(tau) a cubic Hermite spline
+through K keyframes (position p_k, velocity v_k) and q(tau) the SLERP of keyframe
+quaternions q_k along the shortest arc (math in cogs.geometry.splines). Time tau is the
+frame index. The keyframes start fitted to the noisy initial per-frame poses, which stay
+as the pose prior (t̄_t, q̄_t).
+
+Canonical Gaussians start on the surface of a visual hull carved from the object masks
+under the initial trajectory (robust voting, so pose noise and occlusion by the person do
+not erase the object), coloured from the frames by splatting back.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from cogs.branches.gaussians import GaussianSet
+from cogs.geometry.rotations import quat_geodesic_angle, quat_multiply, quat_normalize, quat_to_rotmat
+from cogs.geometry.splines import (
+    acceleration_penalty,
+    fit_keyframes,
+    rotation_smoothness,
+    sample_trajectory,
+    uniform_keyframe_times,
+)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ObjectConfig:
+    """Object-branch hyper-parameters."""
+
+    frames_per_keyframe: float = 5.0
+    """Keyframe spacing in frames (K = ceil(T / spacing) + 1)."""
+    hull_resolution: int = 40
+    """Voxels per side of the carving cube."""
+    hull_margin: float = 1.6
+    """Cube side relative to the object's apparent size (from masks and depth)."""
+    hull_keep_fraction: float = 0.75
+    """A voxel survives when at least this fraction of the frames that decide it see it
+    inside the (dilated) object mask; frames where it falls on the person abstain."""
+    hull_dilate_px: int = 2
+    max_gaussians: int = 8000
+    init_opacity: float = 0.6
+    sh_degree: int = 0
+
+
+class ObjectBranch(torch.nn.Module):
+    def __init__(
+        self,
+        gaussians: GaussianSet,
+        centre: Tensor,  # [3]
+        key_times: Tensor,  # [K]
+        p: Tensor,  # [K, 3]
+        v: Tensor,  # [K, 3]
+        q: Tensor,  # [K, 4]
+        prior_t: Tensor,  # [T, 3] initial per-frame translations
+        prior_q: Tensor,  # [T, 4]
+        cfg: ObjectConfig,
+    ):
+        super().__init__()
+        self.cfg = cfg
+        self.gaussians = gaussians
+        self.register_buffer("centre", centre.float().clone())
+        self.register_buffer("key_times", key_times.float().clone())
+        self.key_p = torch.nn.Parameter(p.float().clone())
+        self.key_v = torch.nn.Parameter(v.float().clone())
+        self.key_q = torch.nn.Parameter(q.float().clone())
+        self.register_buffer("prior_t", prior_t.float().clone())
+        self.register_buffer("prior_q", quat_normalize(prior_q.float()).clone())
+
+    def __len__(self) -> int:
+        return len(self.gaussians)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.prior_t.shape[0])
+
+    # -- trajectory ----------------------------------------------------------------------
+    def pose(self, tau: Tensor) -> tuple[Tensor, Tensor]:
+        """(translation [T, 3], unit quaternion [T, 4]) at frame times tau [T]."""
+        return sample_trajectory(self.key_times, self.key_p, self.key_v, quat_normalize(self.key_q), tau.float())
+
+    def frame_pose(self, t: int) -> tuple[Tensor, Tensor]:
+        tr, q = self.pose(torch.tensor([float(t)]))
+        return tr[0], q[0]
+
+    def posed(self, translation: Tensor, quat: Tensor) -> tuple[Tensor, Tensor]:
+        """Canonical Gaussians moved by one rigid pose: (means [N, 3], quats [N, 4])."""
+        R = quat_to_rotmat(quat)
+        means = (self.gaussians.means - self.centre) @ R.T + translation
+        quats = quat_multiply(quat_normalize(quat).expand(len(self), 4), self.gaussians.quats)
+        return means, quats
+
+    # -- losses --------------------------------------------------------------------------
+    def pose_prior_loss(self, frames: Tensor, lambda_R: float = 1.0) -> Tensor:
+        """mean_t |t_t - t̄_t|_1 + lambda_R d_R(q_t, q̄_t) over the given frames."""
+        tr, q = self.pose(frames.float())
+        idx = frames.long()
+        return (tr - self.prior_t[idx]).abs().sum(-1).mean() + lambda_R * quat_geodesic_angle(q, self.prior_q[idx]).mean()
+
+    def rotation_prior_loss(self, frames: Tensor) -> Tensor:
+        _, q = self.pose(frames.float())
+        return quat_geodesic_angle(q, self.prior_q[frames.long()]).mean()
+
+    def smoothness_losses(self, substeps: int = 1) -> tuple[Tensor, Tensor]:
+        """(acceleration, rotation smoothness) of the trajectory sampled every frame/substeps."""
+        tau = torch.arange(0, (self.n_frames - 1) * substeps + 1, dtype=torch.float32) / substeps
+        tr, q = self.pose(tau)
+        return acceleration_penalty(tr), rotation_smoothness(q)
+
+
+def fit_initial_trajectory(prior_t: Tensor, prior_q: Tensor, cfg: ObjectConfig) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Keyframes (times, p, v, q) fitted to the initial per-frame poses."""
+    T = prior_t.shape[0]
+    frame_times = torch.arange(T, dtype=torch.float64)
+    K = max(2, int(np.ceil((T - 1) / cfg.frames_per_keyframe)) + 1)
+    key_times = uniform_keyframe_times(frame_times, K)
+    p, v, q = fit_keyframes(frame_times, prior_t.double(), prior_q.double(), keyframe_times=key_times)
+    return key_times, p, v, q
+
+
+def _dilate(mask: np.ndarray, px: int) -> np.ndarray:
+    if px <= 0:
+        return mask
+    import cv2
+
+    k = np.ones((2 * px + 1, 2 * px + 1), np.uint8)
+    return cv2.dilate(mask.astype(np.uint8), k) > 0
+
+
+def carve_visual_hull(
+    object_masks: np.ndarray,  # [T, H, W] bool
+    human_masks: np.ndarray,  # [T, H, W] bool
+    Ks: np.ndarray,  # [T, 3, 3]
+    w2cs: np.ndarray,  # [T, 4, 4]
+    translations: np.ndarray,  # [T, 3] object pose per frame
+    rotations: np.ndarray,  # [T, 3, 3]
+    centre: np.ndarray,  # [3] canonical pivot
+    frames: list[int],
+    cfg: ObjectConfig,
+) -> tuple[np.ndarray, float]:
+    """Canonical surface points [M, 3] of the voted visual hull, and the voxel size."""
+    T, H, W = object_masks.shape
+    used = [t for t in frames if object_masks[t].any()]
+    if not used:
+        return np.zeros((0, 3)), 0.0
+    # Apparent size -> metric radius, per frame, from the mask's bounding box and depth.
+    radii = []
+    for t in used:
+        ys, xs = np.nonzero(object_masks[t])
+        extent_px = max(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1)
+        z = (w2cs[t, :3, :3] @ translations[t] + w2cs[t, :3, 3])[2]
+        if z > 0:
+            radii.append(0.5 * extent_px / Ks[t, 0, 0] * z)
+    half = cfg.hull_margin * float(np.median(radii)) if radii else 0.3
+    n = cfg.hull_resolution
+    ax = (np.arange(n) + 0.5) / n * 2 * half - half
+    grid = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3) + centre
+    inside = np.zeros(len(grid))
+    decided = np.zeros(len(grid))
+    for t in used:
+        world = (grid - centre) @ rotations[t].T + translations[t]
+        cam = world @ w2cs[t, :3, :3].T + w2cs[t, :3, 3]
+        z = cam[:, 2]
+        u = Ks[t, 0, 0] * cam[:, 0] / np.maximum(z, 1e-6) + Ks[t, 0, 2]
+        v = Ks[t, 1, 1] * cam[:, 1] / np.maximum(z, 1e-6) + Ks[t, 1, 2]
+        ok = (z > 1e-3) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        ui, vi = u[ok].astype(int), v[ok].astype(int)
+        om = _dilate(object_masks[t], cfg.hull_dilate_px)[vi, ui]
+        hm = human_masks[t][vi, ui]
+        idx = np.flatnonzero(ok)
+        inside[idx] += om
+        decided[idx] += om | ~hm  # on the person and not on the object: occluded, abstain
+    keep = (decided >= 2) & (inside >= cfg.hull_keep_fraction * decided)
+    vox = keep.reshape(n, n, n)
+    if not vox.any():
+        return np.zeros((0, 3)), 2 * half / n
+    pad = np.pad(vox, 1)
+    interior = pad[2:, 1:-1, 1:-1] & pad[:-2, 1:-1, 1:-1] & pad[1:-1, 2:, 1:-1] & pad[1:-1, :-2, 1:-1] & pad[1:-1, 1:-1, 2:] & pad[1:-1, 1:-1, :-2]
+    surface = (vox & ~interior).reshape(-1)
+    return grid[surface], 2 * half / n

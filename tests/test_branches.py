@@ -1,0 +1,255 @@
+"""The three branches and the compositor (issue: branches)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from cogs.branches.build import BranchesConfig, build_branches
+from cogs.branches.compositor import Compositor
+from cogs.branches.gaussians import GaussianSet
+from cogs.branches.human import HumanBranch, HumanConfig, compute_visibility, sample_human_seed
+from cogs.data.scene import load_scene
+from cogs.geometry.camera import intrinsics_from_fov, look_at
+from cogs.geometry.rotations import axis_angle_to_rotmat, quat_to_rotmat
+from cogs.render import rasterize
+
+
+# -- GaussianSet / PLY ---------------------------------------------------------------------
+
+
+def _random_set(n=50, degree=1):
+    g = torch.Generator().manual_seed(3)
+    params = {
+        "means": torch.randn(n, 3, generator=g),
+        "quats": torch.randn(n, 4, generator=g),
+        "scales": torch.randn(n, 3, generator=g) - 3,
+        "opacities": torch.randn(n, generator=g),
+        "sh0": torch.randn(n, 1, 3, generator=g),
+    }
+    if degree:
+        params["shN"] = torch.randn(n, (degree + 1) ** 2 - 1, 3, generator=g)
+    return GaussianSet(params, degree)
+
+
+def test_ply_round_trip_is_exact(tmp_path):
+    for degree in (0, 1, 3):
+        g = _random_set(degree=degree)
+        g.save_ply(tmp_path / f"g{degree}.ply")
+        h = GaussianSet.load_ply(tmp_path / f"g{degree}.ply")
+        assert h.sh_degree == degree
+        for k in g.params:
+            assert torch.equal(g.params[k].data, h.params[k].data), k
+
+
+def test_ply_header_is_the_standard_3dgs_layout(tmp_path):
+    g = _random_set(n=7, degree=3)
+    g.save_ply(tmp_path / "g.ply")
+    raw = (tmp_path / "g.ply").read_bytes()
+    header = raw[: raw.index(b"end_header")].decode()
+    props = [line.split()[-1] for line in header.splitlines() if line.startswith("property")]
+    expected = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]
+                + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+    assert props == expected
+    assert "format binary_little_endian 1.0" in header
+    assert "element vertex 7" in header
+    assert all(line.split()[1] == "float" for line in header.splitlines() if line.startswith("property"))
+
+
+def test_activations_and_concatenation():
+    a, b = _random_set(5, 0), _random_set(7, 1)
+    c = GaussianSet.cat([a, b])
+    assert len(c) == 12 and c.sh_degree == 1
+    torch.testing.assert_close(c.scales[:5], torch.exp(a.params["scales"]))
+    torch.testing.assert_close(c.quats.norm(dim=1), torch.ones(12))
+    assert torch.all((c.opacities > 0) & (c.opacities < 1))
+    assert torch.equal(c.params["shN"][:5], torch.zeros(5, 3, 3))
+    sel = c.select(torch.tensor([0, 11]))
+    assert len(sel) == 2 and torch.equal(sel.means[1], b.means[6])
+
+
+# -- human ----------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_human(body_model):
+    cfg = HumanConfig(n_gaussians=3000, triplane_resolution=32, triplane_channels=8)
+    seed = sample_human_seed(body_model, None, cfg, seed=0)
+    T = 3
+    return HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), [0, 2], cfg)
+
+
+def test_seed_lies_on_the_canonical_surface_with_tangent_discs(body_model, small_human):
+    seed_means = small_human.seed_means
+    can = body_model.canonical()
+    d = torch.cdist(seed_means[:500], can.vertices).min(1).values
+    assert d.max() < 0.03  # on the surface (within a triangle's size)
+    R = quat_to_rotmat(small_human.seed_quats)
+    s = small_human.seed_scales
+    assert torch.all(s[:, 2] < s[:, 0])  # thin along the local z axis ...
+    # ... which is the surface normal, so the disc is tangent to the surface.
+    seed = sample_human_seed(body_model, None, small_human.cfg, seed=0)
+    cos = (R[:, :, 2] * seed.normals).sum(-1).abs()
+    assert cos.min() > 0.999
+
+
+def test_untrained_field_reproduces_the_seed(small_human):
+    st = small_human.decode()
+    torch.testing.assert_close(st.scales, small_human.seed_scales)
+    torch.testing.assert_close(st.opacities, small_human.seed_opacities)
+    torch.testing.assert_close(st.colors, small_human.seed_colors)
+    torch.testing.assert_close(st.weights, small_human.seed_weights, atol=1e-5, rtol=0)
+    cos = (st.quats * small_human.seed_quats).sum(-1).abs()
+    assert cos.min() > 1 - 1e-6
+
+
+def test_rest_pose_returns_the_canonical_gaussians(small_human):
+    pose, transl = small_human.body.zero_pose()
+    st = small_human.decode()
+    posed = small_human.posed(pose, transl, st)
+    torch.testing.assert_close(posed.means, st.means, atol=1e-5, rtol=0)
+    assert (posed.quats * st.quats).sum(-1).abs().min() > 1 - 1e-5
+
+
+def test_known_bone_rotation_moves_gaussians_and_orientations(small_human):
+    h = small_human
+    j = h.body.bone_index("lowerleg01.L")
+    pose, transl = h.body.zero_pose()
+    pose[0, j] = torch.tensor([0.7, 0.0, 0.0])
+    st = h.decode()
+    posed = h.posed(pose, transl, st)
+    head = h.body.canonical().joints[j]
+    subtree = [j]
+    for b, parent in enumerate(h.body.bone_parents):
+        if parent in subtree:
+            subtree.append(b)
+    rigid = torch.nonzero(st.weights[:, subtree].sum(1) > 0.999).flatten()
+    assert len(rigid) > 5
+    Rx = axis_angle_to_rotmat(torch.tensor([0.7, 0.0, 0.0]))
+    torch.testing.assert_close(posed.means[rigid], (st.means[rigid] - head) @ Rx.T + head, atol=1e-4, rtol=0)
+    torch.testing.assert_close(quat_to_rotmat(posed.quats[rigid]), Rx @ quat_to_rotmat(st.quats[rigid]), atol=2e-3, rtol=0)
+
+
+def test_gradients_flow_to_canonical_parameters_field_and_pose_refinements(small_human):
+    h = small_human
+    h.zero_grad()
+    posed = h.posed_frame(0)
+    (posed.means.square().sum() + posed.colors.sum() + posed.scales.sum() + posed.opacities.sum()).backward()
+    assert h.means.grad.abs().sum() > 0
+    assert h.pose_delta.grad[0].abs().sum() > 0 and h.transl_delta.grad[0].abs().sum() > 0
+    assert h.pose_delta.grad[1].abs().sum() == 0  # only frame 0 was rendered
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in h.field.parameters())
+
+
+def test_held_out_frames_interpolate_neighbouring_refinements(small_human):
+    h = small_human
+    with torch.no_grad():
+        h.pose_delta[0] = 0.1
+        h.pose_delta[2] = 0.3
+    try:
+        pose, _ = h.frame_pose(1)  # frame 1 is held out (train = [0, 2])
+        torch.testing.assert_close(pose, torch.full_like(pose, 0.2))
+    finally:
+        with torch.no_grad():
+            h.pose_delta.zero_()
+
+
+def test_visibility_scores_and_anchor_gradients(body_model):
+    """A Gaussian seen in every frame gets v = 1 and no anchor pull; one always hidden
+    (behind the body, or under the object mask) gets v = 0 and is pulled back to the seed."""
+    cfg = HumanConfig(n_gaussians=4000, triplane_resolution=16, triplane_channels=4, seed_opacity=0.95)
+    seed = sample_human_seed(body_model, None, cfg, seed=1)
+    T, W, H = 3, 64, 96
+    h = HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), [0, 1, 2], cfg)
+    K = torch.tensor(intrinsics_from_fov(W, H, 60.0), dtype=torch.float32)
+    # Anny faces -y: a camera on the -y side sees the front.
+    w2c = torch.tensor(look_at([0.0, -3.0, 0.0], [0.0, 0.0, 0.0]), dtype=torch.float32).expand(T, 4, 4)
+    human_masks = np.ones((T, H, W), bool)
+    object_masks = np.zeros((T, H, W), bool)
+    object_masks[:, : H // 3, :] = True  # the object hides the head region in every frame
+    v = compute_visibility(h, [0, 1, 2], w2c, K.expand(T, 3, 3), W, H, human_masks, object_masks, backend="cpu")
+    h.visibility.copy_(v)
+    means = h.seed_means
+    cam_y = -3.0
+    depth = means[:, 1] - cam_y
+    uv_row = (K[1, 1] * (-means[:, 2]) / depth + K[1, 2])
+    low = uv_row > H / 3 + 4  # well below the object mask
+    front = torch.nonzero(low & (seed.normals[:, 1] < -0.9)).flatten()
+    torso = (means[:, 0].abs() < 0.12) & (means[:, 2] > -0.2) & (means[:, 2] < 0.3)
+    back = torch.nonzero(torso & (seed.normals[:, 1] > 0.9)).flatten()  # behind the torso
+    head = torch.nonzero((uv_row < H / 3 - 4) & (seed.normals[:, 1] < -0.9)).flatten()
+    assert len(front) and len(back) and len(head)
+    assert (v[front] == 1).float().mean() > 0.9
+    assert v[back].max() == 0
+    assert v[head].max() == 0
+    i_vis, i_hid = int(front[v[front] == 1][0]), int(back[0])
+    with torch.no_grad():
+        h.means[i_vis] += 0.05
+        h.means[i_hid] += 0.05
+    h.zero_grad()
+    h.anchor_loss(h.decode()).backward()
+    assert h.means.grad[i_vis].abs().sum() == 0
+    g = h.means.grad[i_hid]
+    assert torch.all(g > 0)  # descending the gradient moves it back towards the seed
+    with torch.no_grad():
+        h.means[i_vis] -= 0.05
+        h.means[i_hid] -= 0.05
+
+
+# -- compositor -----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_branches(tmp_path_factory):
+    from tests.fixtures import make_tiny_scene
+
+    root = make_tiny_scene(tmp_path_factory.mktemp("s") / "scene", n_frames=6, width=64, height=48)
+    scene = load_scene(root)
+    cfg = BranchesConfig()
+    cfg.human.n_gaussians = 2000
+    cfg.human.triplane_resolution = 16
+    h, o, s = build_branches(scene, cfg, backend="cpu")
+    return scene, Compositor(h, o, s, backend="cpu")
+
+
+def _cam(scene, t):
+    return (torch.tensor(scene.cameras.world_to_camera[t], dtype=torch.float32),
+            torch.tensor(scene.cameras.K[t], dtype=torch.float32))
+
+
+def test_branch_alphas_sum_to_the_total_alpha(tiny_branches):
+    scene, comp = tiny_branches
+    w2c, K = _cam(scene, 1)
+    with torch.no_grad():
+        out = comp.render(w2c, K, scene.width, scene.height, 1)
+    total = sum(out.branch_alpha.values())
+    torch.testing.assert_close(total, out.alpha, atol=1e-5, rtol=0)
+    assert all(float(a.sum()) > 0 for a in out.branch_alpha.values())
+
+
+def test_branch_only_render_equals_rendering_that_branch_alone(tiny_branches):
+    scene, comp = tiny_branches
+    w2c, K = _cam(scene, 2)
+    with torch.no_grad():
+        for b in ("human", "object", "scene"):
+            only = comp.render(w2c, K, scene.width, scene.height, 2, branches=(b,))
+            s = comp.splats(2, w2c, (b,))[b]
+            ref = rasterize(s.means, s.quats, s.scales, s.opacities, s.rgb, w2c, K, scene.width, scene.height,
+                            near=comp.near, far=comp.far, backend="cpu")
+            torch.testing.assert_close(only.rgb, ref.colors, atol=1e-6, rtol=0)
+            torch.testing.assert_close(only.branch_alpha[b], ref.alpha, atol=1e-6, rtol=0)
+            others = [a for k, a in only.branch_alpha.items() if k != b]
+            assert all(float(a.abs().max()) == 0 for a in others)
+
+
+def test_object_follows_its_trajectory(tiny_branches):
+    scene, comp = tiny_branches
+    o = comp.object
+    tr, q = o.frame_pose(3)
+    means, _ = o.posed(tr, q)
+    c = o.centre
+    # The canonical centre maps to the trajectory's translation.
+    centroid_canon = o.gaussians.means.mean(0)
+    R = quat_to_rotmat(q)
+    torch.testing.assert_close(means.mean(0), (centroid_canon - c) @ R.T + tr, atol=1e-5, rtol=0)
