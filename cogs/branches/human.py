@@ -183,7 +183,9 @@ class HumanBranch(torch.nn.Module):
         cfg: HumanConfig,
     ):
         super().__init__()
-        self.body = body
+        # Not registered as a submodule: the body model is shared, rebuilt from its name,
+        # and must not enter checkpoints.
+        object.__setattr__(self, "body", body)
         self.cfg = cfg
         self.register_buffer("shape", shape.float().clone())
         self.means = torch.nn.Parameter(seed.means.clone())

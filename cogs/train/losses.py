@@ -1,0 +1,101 @@
+"""Loss terms as pure functions of rendered maps and targets.
+
+Images are [H, W, 3] in [0, 1]; alpha maps and masks [H, W, 1] (masks float 0/1).
+Branch-specific regularisers (anchoring, pose prior, smoothness, planes) live with their
+branch; this module holds the image-space terms the stages combine.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from cogs.eval.metrics import ssim_torch
+
+_EPS = 1e-6
+
+
+def l1(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> Tensor:
+    if mask is None:
+        return (pred - target).abs().mean()
+    w = mask.expand_as(pred)
+    return ((pred - target).abs() * w).sum() / w.sum().clamp_min(1.0)
+
+
+def dssim(pred: Tensor, target: Tensor) -> Tensor:
+    """D-SSIM as 3DGS uses it: 1 - SSIM (11x11 Gaussian window, sigma 1.5)."""
+    return 1.0 - ssim_torch(pred, target)
+
+
+def photometric(pred: Tensor, target: Tensor, w_l1: float, w_dssim: float) -> Tensor:
+    """3DGS image loss: w_l1 L1 + w_dssim (1 - SSIM)."""
+    loss = w_l1 * l1(pred, target)
+    if w_dssim > 0:
+        loss = loss + w_dssim * dssim(pred, target)
+    return loss
+
+
+def bce(alpha: Tensor, mask: Tensor, weight: Tensor | None = None) -> Tensor:
+    a = alpha.clamp(_EPS, 1 - _EPS)
+    b = -(mask * torch.log(a) + (1 - mask) * torch.log(1 - a))
+    if weight is None:
+        return b.mean()
+    return (b * weight).sum() / weight.sum().clamp_min(1.0)
+
+
+def dice(alpha: Tensor, mask: Tensor) -> Tensor:
+    """1 - soft Dice coefficient; 0 when both are empty."""
+    inter = (alpha * mask).sum()
+    denom = alpha.sum() + mask.sum()
+    return 1.0 - (2 * inter + 1.0) / (denom + 1.0)
+
+
+def boundary_band(mask: np.ndarray, width_px: int = 2) -> np.ndarray:
+    """[H, W] bool band of +-width_px pixels around a mask's boundary."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    k = np.ones((2 * width_px + 1, 2 * width_px + 1), np.uint8)
+    return (cv2.dilate(m, k) > 0) & ~(cv2.erode(m, k) > 0)
+
+
+def edge(alpha: Tensor, mask: Tensor, band: Tensor) -> Tensor:
+    """Silhouette-boundary term: mean |alpha - mask| inside the boundary band, plus the
+    mismatch of their spatial gradients there (sharp edges at the right place)."""
+    if float(band.sum()) == 0:
+        return alpha.sum() * 0
+    err = ((alpha - mask).abs() * band).sum() / band.sum()
+    gx = lambda x: x[:, 1:] - x[:, :-1]  # noqa: E731
+    gy = lambda x: x[1:] - x[:-1]  # noqa: E731
+    bx, by = band[:, 1:] * band[:, :-1], band[1:] * band[:-1]
+    grad = ((gx(alpha) - gx(mask)).abs() * bx).sum() / bx.sum().clamp_min(1) + ((gy(alpha) - gy(mask)).abs() * by).sum() / by.sum().clamp_min(1)
+    return err + 0.5 * grad
+
+
+def unpremultiplied(rgb: Tensor, alpha: Tensor, image: Tensor, mask: Tensor, background: Tensor | None = None) -> Tensor:
+    """L1 between the un-premultiplied colour (C - (1 - alpha) bg) / alpha and the image,
+    inside the mask where alpha is not tiny: appearance independent of coverage."""
+    fg = rgb if background is None else rgb - (1 - alpha) * background
+    valid = mask * (alpha.detach() > 0.05).float()
+    c = fg / alpha.clamp_min(0.05)
+    return l1(c, image, valid)
+
+
+def composite_over(image: Tensor, mask: Tensor, background: Tensor) -> Tensor:
+    """The image where mask is 1, the background elsewhere."""
+    return image * mask + background * (1 - mask)
+
+
+def blur_mask(mask: Tensor, sigma_px: float = 0.0) -> Tensor:
+    if sigma_px <= 0:
+        return mask
+    r = int(np.ceil(3 * sigma_px))
+    x = torch.arange(-r, r + 1, dtype=mask.dtype)
+    k = torch.exp(-0.5 * (x / sigma_px) ** 2)
+    k = k / k.sum()
+    m = mask.permute(2, 0, 1)[None]
+    m = F.conv2d(F.pad(m, (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
+    m = F.conv2d(F.pad(m, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1))
+    return m[0].permute(1, 2, 0)
