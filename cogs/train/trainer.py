@@ -118,6 +118,9 @@ class Trainer:
             self._resume()
         else:
             save_config(cfg, self.out / "config.yaml")
+            from cogs.data.io import write_json
+
+            write_json(self.out / "run.json", {"scene": str(Path(scene.root).resolve()) if scene.root else None, "preset": cfg.preset})
 
     # -- construction -------------------------------------------------------------------
     def _build_human(self, colors: bool = True):
@@ -243,17 +246,17 @@ class Trainer:
         target = L.composite_over(img, hm, bg)
         pred = torch.where(om > 0, target, out.rgb)
         loss = w.human_rgb * L.photometric(pred, target, w.l1, w.dssim)
-        terms["rgb"] = float(loss)
+        terms["rgb"] = _val(loss)
         alpha = out.alpha
         use_alpha = cfg.use_human_alpha_losses
         if use_alpha:
-            terms["mask"] = float(m := w.human_mask * L.bce(alpha, hm, valid))
-            loss = loss + m
-            terms["unpremult"] = float(u := w.human_unpremultiplied * L.unpremultiplied(out.rgb, alpha, img, hm * valid, bg))
-            loss = loss + u
+            m = w.human_mask * L.bce(alpha, hm, valid)
+            u = w.human_unpremultiplied * L.unpremultiplied(out.rgb, alpha, img, hm * valid, bg)
+            terms["mask"], terms["unpremult"] = _val(m), _val(u)
+            loss = loss + m + u
         if refine and use_alpha:
             a = w.human_alpha_refine * L.l1(alpha, hm, valid) + w.human_dice * L.dice(alpha * valid, hm * valid) + w.human_edge * L.edge(alpha, hm, d.human_band[t] * valid)
-            terms["alpha"] = float(a)
+            terms["alpha"] = _val(a)
             loss = loss + a
         loss = loss + self._human_regularisers(state, terms)
         self._last_render = ("human", out)
@@ -264,7 +267,7 @@ class Trainer:
         loss = torch.zeros(())
         if self.cfg.use_anchoring and w.anchor > 0:
             a = w.anchor * self.human.anchor_loss(state, w.anchor_scale, w.anchor_rotation, w.anchor_opacity)
-            terms["anchor"] = float(a)
+            terms["anchor"] = _val(a)
             loss = loss + a
         if self.human.cfg.refine_pose and w.pose_refine_reg > 0:
             loss = loss + w.pose_refine_reg * self.human.pose_regularizer()
@@ -282,7 +285,7 @@ class Trainer:
             from cogs.geometry.rotations import quat_geodesic_angle
 
             loss = loss + w.pose_prior_rotation * quat_geodesic_angle(q, o.prior_q[frames]).mean() + w.rotation_smoothness * rot
-        terms["motion"] = float(loss)
+        terms["motion"] = _val(loss)
         return loss
 
     def _object_terms(self, t: int, polish: bool, terms: dict) -> torch.Tensor:
@@ -295,14 +298,14 @@ class Trainer:
         fg = torch.clamp(hm + om, max=1.0)
         target = L.composite_over(img, fg, bg)
         loss = w.object_rgb * L.photometric(out.rgb, target, w.l1, w.dssim)
-        terms["rgb"] = float(loss)
+        terms["rgb"] = _val(loss)
         ao = out.branch_alpha["object"]
         sil = w.object_bce * L.bce(ao, om) + w.object_dice * L.dice(ao, om)
-        terms["silhouette"] = float(sil)
+        terms["silhouette"] = _val(sil)
         loss = loss + sil
         if polish:
             e = w.object_edge * L.edge(ao, om, d.object_band[t]) + w.object_unpremultiplied * L.unpremultiplied(out.rgb, out.alpha, img, om, bg)
-            terms["edge"] = float(e)
+            terms["edge"] = _val(e)
             loss = loss + e
         loss = loss + self._object_motion_terms(rotation=polish, terms=terms)
         self._last_render = ("human+object", out)
@@ -314,17 +317,17 @@ class Trainer:
         out = self.compositor.render(d.viewmats[t], d.Ks[t], d.width, d.height, t, background=torch.zeros(3), human_state=state)
         img = d.images[t]
         loss = L.photometric(out.rgb, img, w.l1, w.dssim)
-        terms["rgb"] = float(loss)
+        terms["rgb"] = _val(loss)
         dec = w.compose_human_mask * L.bce(out.branch_alpha["human"], d.human[t], 1.0 - d.object[t])
         if self.object is not None:
             dec = dec + w.compose_object_mask * L.bce(out.branch_alpha["object"], d.object[t])
-        terms["decomp"] = float(dec)
+        terms["decomp"] = _val(dec)
         loss = loss + dec + self._human_regularisers(state, terms)
         if final and self.object is not None:
             loss = loss + self._object_motion_terms(rotation=True, terms=terms)
         if final and cfg.use_planes and frac >= w.plane_warmup_fraction and w.plane > 0:
             p = w.plane * self.scene_branch.plane_loss()
-            terms["plane"] = float(p)
+            terms["plane"] = _val(p)
             loss = loss + p
         self._last_render = ("all", out)
         return loss
@@ -396,17 +399,17 @@ class Trainer:
         else:
             loss = self._compose_terms(t, final=name == "VI" or single, frac=frac, terms=terms)
         if not torch.isfinite(loss):
-            raise FloatingPointError(f"stage {name} step {it} frame {t}: loss is {float(loss)} ({terms})")
+            raise FloatingPointError(f"stage {name} step {it} frame {t}: loss is {_val(loss)} ({terms})")
         loss.backward()
         self._density_statistics()
         for opt in self.optimizers.values():
             opt.step()
         self._guards()
         self._density_step(name, it, n)
-        entry = {"stage": name, "step": it, "frame": t, "loss": float(loss), **terms, **self.counts()}
+        entry = {"stage": name, "step": it, "frame": t, "loss": _val(loss), **terms, **self.counts()}
         if it % cfg.log_every == 0 or it == n - 1:
             self.state.history.append(entry)
-        return f"loss {float(loss):.4f}  G {self.counts()['total']}"
+        return f"loss {_val(loss):.4f}  G {self.counts()['total']}"
 
     def counts(self) -> dict[str, int]:
         c = {b: (len(getattr(self, _attr(b))) if getattr(self, _attr(b)) is not None else 0) for b in ("human", "object", "scene")}
@@ -542,6 +545,27 @@ class Trainer:
             "stage_seconds": dict(self.state.stage_seconds),
             "n_gaussians": {k: v for k, v in self.counts().items() if k != "total"},
         }
+
+
+def _val(x) -> float:
+    return float(x.detach()) if isinstance(x, torch.Tensor) else float(x)
+
+
+def load_run(run: Path, scene: Scene | None = None) -> Trainer:
+    """A finished (or interrupted) run's branches, loaded from its last checkpoint."""
+    from cogs.config import load_config
+    from cogs.data.io import read_json
+    from cogs.data.scene import load_scene
+
+    run = Path(run)
+    if not (run / "config.yaml").exists() or not (run / "checkpoints" / "last.pt").exists():
+        raise UserError(f"{run} is not a training run (no config.yaml or checkpoints/last.pt)")
+    if scene is None:
+        info = read_json(run / "run.json")
+        if not info.get("scene") or not Path(info["scene"]).exists():
+            raise UserError(f"{run}/run.json names scene {info.get('scene')!r}, which does not exist; pass --scene")
+        scene = load_scene(info["scene"])
+    return Trainer(scene, load_config(run / "config.yaml"), run, resume=True, show_progress=False)
 
 
 def _attr(branch: str) -> str:

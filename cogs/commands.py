@@ -1,0 +1,231 @@
+"""Sub-commands of the method: train, eval, demo, ablate, render-init.
+
+Each is a dataclass whose fields are its documented options (tyro turns them into
+flags) and whose `run()` does the work; `cogs.cli` lists them.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Literal
+
+import tyro
+
+from cogs.errors import UserError
+
+log = logging.getLogger("cogs")
+
+
+def _resolved_config(preset: str, overrides: list[str]):
+    from cogs.config import apply_overrides, preset as get_preset
+
+    return apply_overrides(get_preset(preset), overrides)
+
+
+@dataclass
+class Train:
+    """Train the three branches on a scene with the six-stage curriculum."""
+
+    scene: Path
+    """Scene folder (native format; `cogs check` must accept it)."""
+    out: Path
+    """Run folder: config.yaml, checkpoints/, final/ (PLYs, trajectory), train_log.json."""
+    preset: Literal["quick", "paper"] = "quick"
+    """`quick`: iteration counts scaled for a 2-core CPU; `paper`: the CoGS paper's."""
+    set: list[str] = field(default_factory=list)
+    """Overrides, e.g. `--set schedule.VI=2000 weights.anchor=1.0` (see cogs/config.py)."""
+    resume: bool = False
+    """Continue from the run's last checkpoint (parameters, optimizer moments, density
+    state, step and random state are restored)."""
+    print_config: bool = False
+    """Print the fully resolved config as YAML and exit."""
+
+    def run(self) -> int:
+        import yaml
+
+        from cogs.config import load_config, to_dict
+        from cogs.data.scene import load_scene
+        from cogs.train.trainer import Trainer
+
+        if self.resume:
+            if not (self.out / "config.yaml").exists():
+                raise UserError(f"--resume: {self.out} has no config.yaml (was it trained there?)")
+            cfg = load_config(self.out / "config.yaml")
+            if self.set:
+                raise UserError("--resume keeps the run's own config; drop --set (or start a new run)")
+        else:
+            cfg = _resolved_config(self.preset, self.set)
+        if self.print_config:
+            print(yaml.safe_dump(to_dict(cfg), sort_keys=False))
+            return 0
+        scene = load_scene(self.scene)
+        t0 = time.perf_counter()
+        summary = Trainer(scene, cfg, self.out, resume=self.resume).run()
+        log.info("trained in %.0f s (%s); Gaussians %s", time.perf_counter() - t0,
+                 ", ".join(f"{k} {v:.0f}s" for k, v in summary["stage_seconds"].items()), summary["n_gaussians"])
+        return 0
+
+
+@dataclass
+class Eval:
+    """Evaluate a run with its scene's protocol; writes RUN/eval/metrics.json and renders."""
+
+    run_dir: Annotated[Path, tyro.conf.arg(name="run")]
+    """Run folder written by `cogs train`."""
+    out: Path | None = None
+    """Output folder (default RUN/eval)."""
+    renders: bool = True
+    """Save composite, per-branch, ground-truth and error images of the held-out frames."""
+
+    def run(self) -> int:
+        from cogs.eval.evaluate import evaluate
+
+        print(json.dumps(evaluate(self.run_dir, self.out, save_renders=self.renders), indent=1))
+        return 0
+
+
+@dataclass
+class Demo:
+    """The main job: synthesize the benchmark scene, train (quick preset), evaluate, report.
+
+    Re-running continues where it stopped: an existing valid scene is reused and an
+    interrupted training resumes from its last checkpoint."""
+
+    out: Path = Path("demo_out")
+    """Output folder: scene/, the run (checkpoints, final/, eval/), metrics.json, report.html."""
+    preset: Literal["quick", "paper"] = "quick"
+    set: list[str] = field(default_factory=list)
+    """Training config overrides (see `cogs train --help`)."""
+    frames: int = 100
+    seed: int = 0
+    videos: bool = True
+    """Render the camera-path and orbit videos into the report."""
+
+    def run(self) -> int:
+        from cogs.data.validate import check_scene
+        from cogs.log import console
+
+        times: dict[str, float] = {}
+        t_all = time.perf_counter()
+        scene_dir = self.out / "scene"
+        t0 = time.perf_counter()
+        if (scene_dir / "scene.json").exists() and not check_scene(scene_dir):
+            log.info("reusing the synthetic scene in %s", scene_dir)
+        else:
+            from cogs.data.synth import SynthConfig, write_synthetic_scene
+
+            write_synthetic_scene(SynthConfig(frames=self.frames, seed=self.seed), scene_dir, preview=True)
+        problems = check_scene(scene_dir)
+        if problems:
+            raise UserError(f"the synthesized scene failed validation: {problems[0]}")
+        times["synth"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        done = (self.out / "train_summary.json").exists()
+        if not done:
+            resume = (self.out / "checkpoints" / "last.pt").exists()
+            Train(scene_dir, self.out, preset=self.preset, set=[] if resume else self.set, resume=resume).run()
+        times["train"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        from cogs.eval.evaluate import evaluate
+        from cogs.eval.report import write_report
+
+        metrics = evaluate(self.out)
+        shutil.copyfile(self.out / "eval" / "metrics.json", self.out / "metrics.json")
+        times["eval"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        html = write_report(self.out, title="cogs demo: synthetic human-object scene",
+                            extra={"preset": self.preset}, videos=self.videos)
+        times["report"] = time.perf_counter() - t0
+        times["total"] = time.perf_counter() - t_all
+        (self.out / "demo_times.json").write_text(json.dumps(times, indent=1))
+        console.print(f"[green]done[/green] in {times['total']:.0f} s: {self.out / 'metrics.json'}, {html}")
+        f, h, d = metrics["full"], metrics["human_crop"], metrics.get("decomposition") or {}
+        console.print(f"full PSNR {f['psnr']:.2f} dB, SSIM {f['ssim']:.3f}; human-crop PSNR {h['psnr']:.2f} dB; "
+                      f"human IoU {d.get('human_iou')}, object IoU {d.get('object_iou')}", highlight=False)
+        return 0
+
+
+@dataclass
+class RenderInit:
+    """Render the initialised branches (no training) over several frames beside the
+    ground truth into one PNG: the seeds in place and the object on its noisy trajectory."""
+
+    scene: Path
+    out: Path = Path("init.png")
+    frames: int = 4
+    """How many frames (spread over the clip)."""
+    preset: Literal["quick", "paper"] = "quick"
+
+    def run(self) -> int:
+        import numpy as np
+
+        from cogs.branches.build import build_branches
+        from cogs.branches.compositor import Compositor
+        from cogs.data.scene import load_scene
+        from cogs.eval.evaluate import render_frame
+        from cogs.eval.report import _label
+
+        from cogs.data.io import write_image
+
+        scene = load_scene(self.scene)
+        cfg = _resolved_config(self.preset, [])
+        h, o, s = build_branches(scene, cfg.branches, cfg.backend)
+        comp = Compositor(h, o, s, backend=cfg.backend)
+        rows = []
+        for t in np.linspace(0, scene.n_frames - 1, self.frames).round().astype(int):
+            cells = [_label(scene.images[t], f"GT frame {t}")]
+            cells.append(_label(render_frame(comp, scene, int(t)).rgb.clamp(0, 1).numpy(), "composite (init)"))
+            for b in comp.available():
+                cells.append(_label(render_frame(comp, scene, int(t), branches=(b,)).rgb.clamp(0, 1).numpy(), b))
+            rows.append(np.concatenate(cells, axis=1))
+        write_image(self.out, np.concatenate(rows, axis=0))
+        log.info("wrote %s", self.out)
+        return 0
+
+
+ABLATIONS: dict[str, list[str]] = {
+    "full": [],
+    "no human prior seed": ["use_human_seed=false"],
+    "no object seed": ["use_object_seed=false"],
+    "no visibility anchoring": ["use_anchoring=false"],
+    "no human alpha/boundary losses": ["use_human_alpha_losses=false"],
+    "no delayed planar regularization": ["use_planes=false"],
+    "single-stage joint training": ["schedule.single_stage=true"],
+}
+
+
+@dataclass
+class Ablate:
+    """The paper's ablations on a scene: one training run per removed component, one table."""
+
+    out: Path = Path("ablation_out")
+    scene: Path | None = None
+    """Scene to use (default: synthesize the benchmark scene into OUT/scene)."""
+    preset: Literal["quick", "paper"] = "quick"
+    only: list[str] = field(default_factory=list)
+    """Run only these variants (names as in the table; default all)."""
+
+    def run(self) -> int:
+        from cogs.data.validate import check_scene
+        from cogs.eval.ablation import run_ablation
+
+        scene = self.scene
+        if scene is None:
+            scene = self.out / "scene"
+            if not ((scene / "scene.json").exists() and not check_scene(scene)):
+                from cogs.data.synth import SynthConfig, write_synthetic_scene
+
+                write_synthetic_scene(SynthConfig(), scene, preview=False)
+        variants = {k: v for k, v in ABLATIONS.items() if not self.only or k in self.only}
+        unknown = set(self.only) - set(ABLATIONS)
+        if unknown:
+            raise UserError(f"unknown ablation(s) {sorted(unknown)}; known: {list(ABLATIONS)}")
+        run_ablation(scene, self.out, self.preset, variants)
+        return 0

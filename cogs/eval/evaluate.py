@@ -1,0 +1,166 @@
+"""`cogs eval`: the evaluation protocols on a trained run, writing metrics.json and renders.
+
+Protocols (the split itself lives in the scene, see `cogs.eval.protocols`):
+    hosnerf-16  full frame, human tight-bbox crop, object tight-bbox crop; PSNR/SSIM/LPIPS
+    neuman      full frame and human tight-bbox crop
+Synthetic scenes (ground truth present) add novel views off the training path, branch
+decomposition IoU against the ground-truth masks, and object pose error.
+
+metrics.json schema (DESIGN.md): protocol, n_test_frames, full, human_crop, object_crop,
+novel_view, decomposition, object_pose_error, train_seconds, stage_seconds, n_gaussians,
+notes. A value that cannot be computed is null with a note saying why.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from cogs.data.io import read_json, write_image, write_json
+from cogs.eval.metrics import crop_to_mask, image_metrics, iou
+from cogs.geometry.rotations import quat_geodesic_angle
+
+log = logging.getLogger(__name__)
+
+
+def _mean_metrics(rows: list[dict], notes: list[str], what: str) -> dict:
+    out = {}
+    for k in ("psnr", "ssim", "lpips"):
+        vals = [r[k] for r in rows if r.get(k) is not None and math.isfinite(r[k])]
+        out[k] = float(np.mean(vals)) if vals else None
+        if not vals and rows:
+            notes.append(f"{what}.{k}: not computable ({'no frames' if not rows else 'unavailable for every frame'})")
+    return out
+
+
+def _error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    import matplotlib
+
+    err = np.abs(pred - gt).mean(-1)
+    return matplotlib.colormaps["inferno"](np.clip(err / 0.25, 0, 1))[..., :3]
+
+
+def render_frame(comp, scene, t: int, branches=None, viewmat=None, K=None):
+    """Composite render of frame t (training camera unless viewmat/K given), no grad."""
+    vm = torch.as_tensor(scene.cameras.world_to_camera[t] if viewmat is None else viewmat, dtype=torch.float32)
+    KK = torch.as_tensor(scene.cameras.K[t] if K is None else K, dtype=torch.float32)
+    with torch.no_grad():
+        return comp.render(vm, KK, scene.width, scene.height, t, branches=branches, background=torch.zeros(3))
+
+
+def evaluate(run: Path, out: Path | None = None, save_renders: bool = True) -> dict:
+    from cogs.train.trainer import load_run
+
+    run = Path(run)
+    out = Path(out) if out else run / "eval"
+    trainer = load_run(run)
+    scene, comp = trainer.scene, trainer.compositor
+    gt = scene.gt
+    notes: list[str] = []
+    protocol = scene.source.get("protocol", "hosnerf-16")
+    test = list(scene.split["test"])
+    if not test:
+        notes.append("the scene's split has no test frames: nothing to evaluate")
+    human_masks = gt.human_masks if gt is not None else scene.human_masks
+    object_masks = (gt.object_masks if gt is not None else scene.object_masks) if scene.has_object else None
+    if gt is None:
+        notes.append("no ground truth: crops use the input masks; novel views, decomposition and object pose error are null")
+
+    full, hcrop, ocrop, h_iou, o_iou = [], [], [], [], []
+    rdir = out / "renders"
+    for t in test:
+        r = render_frame(comp, scene, t)
+        pred = r.rgb.clamp(0, 1).numpy()
+        img = scene.images[t].astype(np.float32) / 255.0
+        full.append(image_metrics(pred, img, notes=notes))
+        c = crop_to_mask(pred, img, human_masks[t])
+        if c is not None:
+            hcrop.append(image_metrics(*c, notes=notes))
+        if object_masks is not None and protocol != "neuman":
+            c = crop_to_mask(pred, img, object_masks[t])
+            if c is not None:
+                ocrop.append(image_metrics(*c, notes=notes))
+        if gt is not None:
+            h_iou.append(iou(r.branch_alpha["human"][..., 0].numpy() > 0.5, gt.human_masks[t]))
+            if scene.has_object and (gt.object_masks[t].any() or (r.branch_alpha["object"] > 0.5).any()):
+                o_iou.append(iou(r.branch_alpha["object"][..., 0].numpy() > 0.5, gt.object_masks[t]))
+        if save_renders:
+            fid = scene.frame_ids[t]
+            write_image(rdir / f"{fid}_composite.png", pred)
+            write_image(rdir / f"{fid}_gt.png", img)
+            write_image(rdir / f"{fid}_error.png", _error_map(pred, img))
+            for b in comp.available():
+                rb = render_frame(comp, scene, t, branches=(b,))
+                write_image(rdir / f"{fid}_{b}.png", rb.rgb.clamp(0, 1).numpy())
+
+    metrics: dict = {
+        "protocol": protocol,
+        "n_test_frames": len(test),
+        "full": _mean_metrics(full, notes, "full"),
+        "human_crop": _mean_metrics(hcrop, notes, "human_crop"),
+        "object_crop": _mean_metrics(ocrop, notes, "object_crop") if protocol != "neuman" and scene.has_object else None,
+        "novel_view": None,
+        "decomposition": None,
+        "object_pose_error": None,
+    }
+    if protocol == "neuman":
+        notes.append("neuman protocol: no object crop")
+    elif not scene.has_object:
+        notes.append("object_crop: the scene has no object")
+    if gt is not None:
+        metrics["decomposition"] = {
+            "human_iou": float(np.mean(h_iou)) if h_iou else None,
+            "object_iou": float(np.mean(o_iou)) if o_iou else None,
+        }
+        metrics["novel_view"] = _novel_views(comp, scene, notes, out if save_renders else None)
+        if scene.has_object and comp.object is not None:
+            metrics["object_pose_error"] = _object_pose_error(comp.object, gt.object, test)
+    summary_path = run / "train_summary.json"
+    summary = read_json(summary_path) if summary_path.exists() else trainer.summary()
+    metrics.update(summary)
+    metrics["notes"] = sorted(set(notes))
+    write_json(out / "metrics.json", metrics)
+    return metrics
+
+
+def _novel_views(comp, scene, notes: list[str], out: Path | None) -> dict | None:
+    nv = scene.gt.novel
+    if nv is None or len(nv.frames) == 0:
+        notes.append("novel_view: the scene has no novel-view ground truth")
+        return None
+    rows = []
+    for i, t in enumerate(nv.frames):
+        r = render_frame(comp, scene, int(t), viewmat=nv.cameras.world_to_camera[i], K=nv.cameras.K[i])
+        pred = r.rgb.clamp(0, 1).numpy()
+        img = nv.images[i].astype(np.float32) / 255.0
+        rows.append(image_metrics(pred, img, notes=notes))
+        if out is not None:
+            write_image(out / "novel" / f"v{i:03d}_render.png", pred)
+            write_image(out / "novel" / f"v{i:03d}_gt.png", img)
+    res = _mean_metrics(rows, notes, "novel_view")
+    res["n_views"] = len(rows)
+    return res
+
+
+def _object_pose_error(obj, gt_track, frames: list[int]) -> dict:
+    """Mean translation (m) and rotation (deg) error of the learned trajectory vs ground truth.
+
+    Both live in the same canonical object frame (the scene's object centre), so no
+    alignment is needed. Reported on the test frames, and over all frames for reference.
+    """
+
+    def errors(idx):
+        tau = torch.tensor(idx, dtype=torch.float32)
+        with torch.no_grad():
+            tr, q = obj.pose(tau)
+        gt_t = torch.as_tensor(gt_track.translations[idx], dtype=torch.float32)
+        gt_q = torch.as_tensor(gt_track.quats[idx], dtype=torch.float32)
+        return float((tr - gt_t).norm(dim=1).mean()), float(torch.rad2deg(quat_geodesic_angle(q, gt_q)).mean())
+
+    t_test, r_test = errors(list(frames))
+    t_all, r_all = errors(list(range(len(gt_track))))
+    return {"translation": t_test, "rotation_deg": r_test, "translation_all_frames": t_all, "rotation_deg_all_frames": r_all}
