@@ -64,7 +64,9 @@ class Doctor:
 
 
 def _commands() -> dict[str, type]:
-    return {"check": Check, "doctor": Doctor}
+    from cogs.preprocess.importers import Import
+
+    return {"check": Check, "doctor": Doctor, "import": Import}
 
 
 def main(argv: list[str] | None = None) -> int:

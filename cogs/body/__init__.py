@@ -27,7 +27,19 @@ def _anny() -> BodyModel:
     return AnnyBody()
 
 
-MODELS: dict[str, ModelInfo] = {"anny": ModelInfo(n_bones=104, n_shape=6, factory=_anny)}
+def _smpl() -> BodyModel:
+    # smplx is imported lazily and the licensed model file is looked up only here
+    # (COGS_SMPL_MODEL or cogs.body.smpl_body.set_smpl_model_path); a missing file is a
+    # UserError that says what to set.
+    from cogs.body.smpl_body import SmplBody
+
+    return SmplBody()
+
+
+MODELS: dict[str, ModelInfo] = {
+    "anny": ModelInfo(n_bones=104, n_shape=6, factory=_anny),
+    "smpl": ModelInfo(n_bones=24, n_shape=10, factory=_smpl),
+}
 
 _instances: dict[str, BodyModel] = {}
 

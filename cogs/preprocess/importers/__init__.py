@@ -1,0 +1,60 @@
+"""Importers: public benchmarks' layouts -> the native scene format.
+
+    cogs import neuman DIR --out SCENE       NeuMan sequence (COLMAP + SMPL fits)
+    cogs import humannerf DIR --out SCENE    HumanNeRF / HOSNeRF subject
+
+Each importer reads only what its layout documents (see docs/datasets.md), loads pickles
+through the restricted unpickler (`cogs.preprocess.safe_pickle`), and writes a scene that
+passes `cogs check`. Bodies are retargeted onto the free Anny model from the SMPL joints by
+default; `--body-model smpl` keeps SMPL parameters (needs the licensed model file).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
+
+import tyro
+
+from cogs.preprocess.importers.humannerf import import_humannerf
+from cogs.preprocess.importers.neuman import import_neuman
+
+IMPORTERS = {"neuman": import_neuman, "humannerf": import_humannerf}
+
+
+@dataclass
+class Import:
+    """Import a public benchmark sequence (NeuMan, HumanNeRF/HOSNeRF) as a native scene."""
+
+    kind: tyro.conf.Positional[Literal["neuman", "humannerf"]]
+    """Layout of DIR: neuman, or humannerf (also HOSNeRF)."""
+    dir: tyro.conf.Positional[Annotated[Path, tyro.conf.arg(metavar="DIR")]]
+    """The dataset's sequence folder."""
+    out: Path
+    """Scene folder to write."""
+    body_model: Literal["anny", "smpl"] = "anny"
+    """anny: retarget the SMPL joints onto the free Anny model (no licence needed);
+    smpl: keep the SMPL parameters (needs the licensed SMPL model file)."""
+    smpl_model: Path | None = None
+    """Licensed SMPL model file (SMPL_NEUTRAL.pkl/.npz) or its folder; default: $COGS_SMPL_MODEL."""
+    smpl_source: Literal["auto", "optimized", "4d_humans"] = "auto"
+    """NeuMan only: smpl_output_optimized.pkl + alignments.npy (optimized), HUGS'
+    4d_humans/smpl_optimized_aligned_scale.npz (4d_humans), or auto."""
+
+    def run(self) -> int:
+        from cogs.log import console
+
+        if self.smpl_model is not None:
+            from cogs.body.smpl_body import set_smpl_model_path
+
+            set_smpl_model_path(self.smpl_model)
+        if self.kind == "neuman":
+            out = import_neuman(self.dir, self.out, self.body_model, self.smpl_model, self.smpl_source)
+        else:
+            out = import_humannerf(self.dir, self.out, self.body_model, self.smpl_model)
+        console.print(f"[green]imported[/green] {self.dir} -> {out}  (check it with: cogs check {out})")
+        return 0
+
+
+__all__ = ["IMPORTERS", "Import", "import_humannerf", "import_neuman"]
