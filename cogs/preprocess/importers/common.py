@@ -521,7 +521,7 @@ def write_scene(frames: ImportedFrames, out: Path, body_model: str, smpl_model: 
     source["body"] = {"model": body_model, **body_info}
     world_joints = smpl_joints_in_world(frames.fits, frames.body_R, frames.body_c) if frames.fits.joints is not None else None
     if world_joints is None and (frames.points_xyz is None or frames.object_masks is not None):
-        world_joints = _joints_from_track(body)
+        world_joints = _joints_from_track(body, smpl_model)
     obj = None
     human = frames.human_masks
     if frames.object_masks is not None:
@@ -554,12 +554,17 @@ def write_scene(frames: ImportedFrames, out: Path, body_model: str, smpl_model: 
     return out
 
 
-def _joints_from_track(body: BodyTrack) -> np.ndarray:
+def _joints_from_track(body: BodyTrack, smpl_model: Path | None) -> np.ndarray:
     """SMPL-order world joints [T, 24, 3] of a converted body track."""
     from cogs.body import load_body_model
     from cogs.body.retarget import anny_bone_indices
 
-    model = load_body_model(body.model)
+    if body.model == "smpl":
+        from cogs.body.smpl_body import SmplBody
+
+        model = SmplBody(smpl_model)
+    else:
+        model = load_body_model(body.model)
     with torch.no_grad():
         _, J = model.bone_transforms(torch.from_numpy(body.pose).float(), torch.from_numpy(body.transl).float(),
                                      torch.from_numpy(body.shape).float())
