@@ -64,9 +64,10 @@ class Doctor:
 
 
 def _commands() -> dict[str, type]:
+    from cogs.data.synth.command import Synth
     from cogs.preprocess.importers import Import
 
-    return {"check": Check, "doctor": Doctor, "import": Import}
+    return {"synth": Synth, "check": Check, "doctor": Doctor, "import": Import}
 
 
 def main(argv: list[str] | None = None) -> int:
