@@ -65,9 +65,10 @@ class Doctor:
 
 def _commands() -> dict[str, type]:
     from cogs.data.synth.command import Synth
+    from cogs.preprocess.command import Preprocess
     from cogs.preprocess.importers import Import
 
-    return {"synth": Synth, "check": Check, "doctor": Doctor, "import": Import}
+    return {"synth": Synth, "check": Check, "doctor": Doctor, "import": Import, "preprocess": Preprocess}
 
 
 def main(argv: list[str] | None = None) -> int:

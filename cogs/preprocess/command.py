@@ -1,0 +1,123 @@
+"""The `cogs preprocess` sub-command: its options and entry point."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import tyro
+
+
+@dataclass
+class Preprocess:
+    """Turn a raw video (or a folder of frames) into a native cogs scene, on a CPU.
+
+    Steps (each cached under OUT/.cache, so a re-run resumes where it stopped): frames,
+    person masks and keypoints (MediaPipe), object masks from a box prompt, cameras and
+    sparse points (pycolmap, rotation-only fallback), body fit, initial object trajectory,
+    planes; then the scene and OUT/preview.png. See docs/preprocess.md.
+    """
+
+    input: tyro.conf.Positional[Path]
+    """Video file (anything FFmpeg reads) or a folder of frames (sorted by name)."""
+
+    out: Path
+    """Scene folder to write (created; its .cache/ holds the intermediate steps)."""
+
+    stride: int = 1
+    """Keep every stride-th input frame."""
+
+    start: int = 0
+    """First input frame to consider."""
+
+    limit: int | None = None
+    """Keep at most this many frames (after start and stride)."""
+
+    max_side: int = 960
+    """Shrink frames so their longer side is at most this many pixels (never enlarged)."""
+
+    focal_factor: float = 1.2
+    """Focal-length prior in pixels = focal_factor x the longer image side (a phone's main
+    camera is about 1.2). Held fixed during SfM."""
+
+    focal_px: float | None = None
+    """Focal length in pixels of the processed frames; overrides --focal-factor."""
+
+    object_box: tuple[float, float, float, float] | None = None
+    """Object prompt: a box x0 y0 x1 y1 around the object, in pixels of the input video."""
+
+    object_box_frame: int = 0
+    """Index (among the kept frames) of the frame the box is drawn on."""
+
+    object_masks: Path | None = None
+    """Folder of ready-made object masks (one image per frame, sorted by name; white =
+    object), instead of --object-box."""
+
+    body_model: str = "anny"
+    """Body model fitted to the person."""
+
+    sfm: Literal["auto", "colmap", "rotation"] = "auto"
+    """Camera estimation: colmap, the rotation-only fallback, or auto (colmap, falling back
+    when too few frames register or the camera barely translates)."""
+
+    matching: Literal["auto", "exhaustive", "sequential"] = "auto"
+    """SfM feature matching: every pair, neighbouring frames only, or auto (exhaustive up to
+    --exhaustive-max-frames frames)."""
+
+    exhaustive_max_frames: int = 120
+    """auto: the longest clip matched exhaustively (the cost grows with frames squared)."""
+
+    min_registered: float = 0.6
+    """auto: fall back to rotation-only when SfM poses fewer than this fraction of frames
+    (or triangulates fewer than max(100, 5 per posed frame) points)."""
+
+    min_parallax: float = 0.02
+    """auto: keep SfM's rotations but fix the camera centre when the camera centres spread
+    less than this fraction of the scene depth (points without usable depth)."""
+
+    mask_dilate_px: int = 8
+    """Grow the person and object masks by this many pixels before hiding them from SfM."""
+
+    person_threshold: float = 0.5
+    """Threshold on MediaPipe's soft person mask."""
+
+    body_iterations: int = 300
+    """Optimiser iterations of the joint body fit."""
+
+    max_planes: int = 4
+    """At most this many planes from RANSAC on the sparse points (besides the ground)."""
+
+    sam2_checkpoint: Path | None = None
+    """Optional SAM2 checkpoint: with the `sam2` package installed, SAM2 segments the person
+    and propagates the object box instead of the classical tracker."""
+
+    sam2_config: str = "configs/sam2.1/sam2.1_hiera_t.yaml"
+    """SAM2 model config matching --sam2-checkpoint."""
+
+    preview_frames: int = 12
+    """Frames shown in OUT/preview.png."""
+
+    name: str | None = None
+    """Scene name (default: the input's file name)."""
+
+    force: bool = False
+    """Recompute every step, ignoring OUT/.cache."""
+
+    progress: bool = True
+    """Show progress bars."""
+
+    def run(self) -> int:
+        from cogs.log import console
+        from cogs.preprocess.pipeline import run_preprocess
+
+        rep = run_preprocess(self)
+        total = sum(rep.seconds.values())
+        steps = ", ".join(f"{k} {v:.1f}s" for k, v in rep.seconds.items() if k not in rep.cached)
+        console.print(
+            f"[green]scene written[/green] {rep.scene} (preview {rep.preview}); {total:.1f} s"
+            + (f" [{steps}]" if steps else "")
+            + (f"; cached: {', '.join(rep.cached)}" if rep.cached else ""),
+            highlight=False,
+        )
+        return 0

@@ -1,0 +1,517 @@
+"""`cogs preprocess`: the steps from a raw video to a native scene, each cached.
+
+    frames -> persons -> objects -> cameras -> body -> object pose -> planes -> scene + preview
+
+Every step stores its result under ``SCENE/.cache/<step>.npz`` with a ``<step>.json`` beside
+it holding a key: a hash of the step's options and of the keys of the steps it reads. A
+re-run loads every step whose key still matches and recomputes from the first that does
+not (an interrupted run resumes where it stopped; changing ``--object-box`` redoes the
+object masks and what depends on them, not the frames or the person). ``--force`` ignores
+the cache.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from cogs.errors import UserError
+
+log = logging.getLogger(__name__)
+
+CACHE_VERSION = 1
+STEPS = ["frames", "persons", "objects", "cameras", "body", "object_pose", "planes", "scene"]
+
+
+def hosnerf_split(n: int) -> dict[str, list[int]]:
+    """The hosnerf-16 protocol's split.
+
+    n >= 32: the test frames are the first 16 of every (n // 16)-th frame (0, s, ..., 15 s);
+    shorter clips hold out every 4th frame starting at frame 2 (2, 6, 10, ...), which keeps
+    both ends in training and leaves clips of one or two frames entirely for training.
+    """
+    if n >= 32:
+        s = n // 16
+        test = [i * s for i in range(16)]
+    else:
+        test = list(range(2, n, 4))
+    test_set = set(test)
+    return {"train": [i for i in range(n) if i not in test_set], "test": test}
+
+
+# -- cache ----------------------------------------------------------------------------
+
+
+class Cache:
+    """Step results on disk. ``keys[step]`` is the *result id* of a loaded or computed step
+    (a fresh id each time a step is computed), so whatever reads a recomputed step is
+    recomputed too, even when the step's own options did not change."""
+
+    def __init__(self, root: Path, force: bool = False):
+        self.root = Path(root)
+        self.force = force
+        self.keys: dict[str, str] = {}
+
+    def key(self, step: str, params: dict, deps: list[str]) -> str:
+        blob = json.dumps({"v": CACHE_VERSION, "step": step, "params": params, "deps": [self.keys[d] for d in deps]}, sort_keys=True, default=str)
+        return hashlib.sha1(blob.encode()).hexdigest()
+
+    def load(self, step: str, key: str) -> tuple[dict, dict] | None:
+        meta_path, data_path = self.root / f"{step}.json", self.root / f"{step}.npz"
+        if self.force or not meta_path.exists() or not data_path.exists():
+            return None
+        try:
+            meta = json.loads(meta_path.read_text())
+            if meta.get("key") != key:
+                return None
+            with np.load(data_path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (OSError, ValueError, json.JSONDecodeError, EOFError):
+            return None  # a step interrupted while writing: recompute it
+        return arrays, meta
+
+    def save(self, step: str, key: str, arrays: dict, meta: dict, compress: bool) -> None:
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = self.root / f"{step}.tmp.npz"
+        (np.savez_compressed if compress else np.savez)(tmp, **arrays)
+        tmp.replace(self.root / f"{step}.npz")
+        # The key is written last: a step counts as done only once its data is complete.
+        (self.root / f"{step}.json").write_text(json.dumps({**meta, "key": key}, indent=1, default=_json_default))
+
+    def result_id(self, meta: dict) -> str:
+        return str(meta.get("result_id", meta.get("key")))
+
+
+def _json_default(x):
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.floating, np.integer, np.bool_)):
+        return x.item()
+    return str(x)
+
+
+# -- the run --------------------------------------------------------------------------
+
+
+@dataclass
+class RunReport:
+    scene: Path
+    preview: Path
+    seconds: dict[str, float] = field(default_factory=dict)
+    cached: list[str] = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
+
+
+class _Progress:
+    """One rich progress display; each step is a task with stage, count, rate and eta."""
+
+    def __init__(self, enabled: bool):
+        from cogs.log import progress
+
+        self.enabled = enabled
+        self.p = progress() if enabled else None
+
+    def __enter__(self):
+        if self.p:
+            self.p.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self.p:
+            self.p.__exit__(*exc)
+
+    def task(self, label: str, total: int) -> Callable[..., None]:
+        from cogs.log import rate_text
+
+        if not self.p:
+            return lambda done, info="", total_now=None: None
+        tid = self.p.add_task(label, total=max(total, 1), rate="", info="")
+        started = time.perf_counter()
+
+        def update(done: int, info: str = "", total_now: int | None = None) -> None:
+            kw = {"total": max(total_now, 1)} if total_now else {}
+            self.p.update(tid, completed=done, rate=rate_text(done, started), info=info, **kw)
+
+        return update
+
+    def done(self, label: str, note: str) -> None:
+        if self.p:
+            self.p.add_task(f"{label} [dim](cached)[/dim]", total=1, completed=1, rate="", info=note)
+
+
+def run_preprocess(cfg) -> RunReport:
+    """Run every step for a `cogs.preprocess.command.Preprocess` configuration."""
+    return _Runner(cfg).run()
+
+
+class _Runner:
+    def __init__(self, cfg):
+        self.cfg = cfg
+        self.out = Path(cfg.out)
+        self.cache = Cache(self.out / ".cache", force=cfg.force)
+        self.report = RunReport(scene=self.out, preview=self.out / "preview.png")
+        self.n_steps = len(STEPS)
+
+    # Each step: params that define it, steps it reads, compute -> (arrays, meta).
+    def _step(self, ui: _Progress, i: int, name: str, params: dict, deps: list[str], compute, compress: bool = True):
+        key = self.cache.key(name, params, deps)
+        label = f"[{i}/{self.n_steps}] {name}"
+        hit = self.cache.load(name, key)
+        if hit is not None:
+            self.cache.keys[name] = self.cache.result_id(hit[1])
+            arrays, meta = hit
+            ui.done(label, meta.get("summary", ""))
+            self.report.cached.append(name)
+            self.report.seconds[name] = 0.0
+            self.report.stats[name] = meta.get("stats", {})
+            return arrays, meta
+        t0 = time.perf_counter()
+        arrays, meta = compute(label)
+        dt = time.perf_counter() - t0
+        meta = {**meta, "seconds": dt, "result_id": uuid.uuid4().hex}
+        self.cache.save(name, key, arrays, meta, compress)
+        self.cache.keys[name] = meta["result_id"]
+        self.report.seconds[name] = dt
+        self.report.stats[name] = meta.get("stats", {})
+        return arrays, meta
+
+    def run(self) -> RunReport:
+        cfg = self.cfg
+        src = Path(cfg.input)
+        if not src.exists():
+            raise UserError(f"input {src} does not exist")
+        if cfg.object_box is not None and cfg.object_masks is not None:
+            raise UserError("give either --object-box or --object-masks, not both")
+        if cfg.body_model not in _known_models():
+            raise UserError(f"--body-model {cfg.body_model!r} is unknown; known: {', '.join(_known_models())}")
+        self.out.mkdir(parents=True, exist_ok=True)
+        stat = src.stat()
+        with _Progress(cfg.progress) as ui:
+            self._ui = ui
+            fr, fmeta = self._step(ui, 1, "frames", {
+                "input": str(src.resolve()), "size": stat.st_size if src.is_file() else None,
+                "mtime": stat.st_mtime, "stride": cfg.stride, "limit": cfg.limit, "start": cfg.start,
+                "max_side": cfg.max_side,
+            }, [], self._frames, compress=False)
+            images = fr["images"]
+            T, H, W, _ = images.shape
+            self.source_size = tuple(fmeta["source_size"])
+            self.fps = float(fmeta["fps"])
+            self.source_indices = fr["source_indices"]
+
+            pe, _ = self._step(ui, 2, "persons", {"threshold": cfg.person_threshold, "sam2": str(cfg.sam2_checkpoint)}, ["frames"], lambda lb: self._persons(lb, ui, images))
+            if not pe["detected"].any():
+                raise UserError(f"no person detected in any of the {T} frames of {src}")
+
+            has_object = cfg.object_box is not None or cfg.object_masks is not None
+            ob_params = {"box": cfg.object_box, "frame": cfg.object_box_frame, "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint)}
+            if has_object:
+                ob, _ = self._step(ui, 3, "objects", ob_params, ["frames", "persons"], lambda lb: self._objects(lb, ui, images, pe))
+                obj_masks = ob["masks"].astype(bool)
+            else:
+                self.cache.keys["objects"] = "none"
+                ui.done(f"[3/{self.n_steps}] objects", "no object prompt: scene without object")
+                obj_masks, ob = None, None
+            human_masks = pe["masks"].astype(bool)
+            if obj_masks is not None:
+                human_masks = human_masks & ~obj_masks  # one owner per pixel: the object wins
+
+            focal = cfg.focal_px if cfg.focal_px else cfg.focal_factor * max(W, H)
+            K = np.array([[focal, 0.0, 0.5 * W], [0.0, focal, 0.5 * H], [0.0, 0.0, 1.0]])
+            cam, cmeta = self._step(ui, 4, "cameras", {
+                "focal": focal, "sfm": cfg.sfm, "min_registered": cfg.min_registered,
+                "min_parallax": cfg.min_parallax, "dilate": cfg.mask_dilate_px, "matching": cfg.matching,
+                "exhaustive_max_frames": cfg.exhaustive_max_frames,
+            }, ["frames", "persons", "objects"], lambda lb: self._cameras(lb, ui, images, pe["masks"].astype(bool), obj_masks, K))
+
+            bo, bmeta = self._step(ui, 5, "body", {"model": cfg.body_model, "iterations": cfg.body_iterations}, ["persons", "cameras"],
+                                   lambda lb: self._body(lb, ui, images, pe, cam, cmeta, K))
+
+            if has_object:
+                op, _ = self._step(ui, 6, "object_pose", {}, ["objects", "body"], lambda lb: self._object_pose(lb, ui, ob, human_masks, bo, K))
+            else:
+                self.cache.keys["object_pose"] = "none"
+                ui.done(f"[6/{self.n_steps}] object_pose", "no object")
+                op = None
+
+            pl, _ = self._step(ui, 7, "planes", {"max_planes": cfg.max_planes}, ["body"], lambda lb: self._planes(lb, ui, bo))
+
+            update = ui.task(f"[8/{self.n_steps}] scene", 2)
+            t0 = time.perf_counter()
+            self._write_scene(images, human_masks, obj_masks, bo, bmeta, op, pl, K, cmeta)
+            update(1, "scene written")
+            from cogs.preprocess.preview import contact_sheet
+
+            contact_sheet(self.out, self.report.preview, kp2d=pe["kp2d"], registered=bo["registered"].astype(bool), camera_method=cmeta["method"],
+                          radii=None if op is None else op["radii"], n_frames=cfg.preview_frames, body_model=cfg.body_model)
+            update(2, str(self.report.preview))
+            self.report.seconds["scene"] = time.perf_counter() - t0
+        return self.report
+
+    # -- steps ----------------------------------------------------------------------
+
+    def _frames(self, label):
+        from cogs.preprocess.frames import read_frames
+
+        cfg = self.cfg
+        total = cfg.limit or _estimate_frames(cfg.input, cfg.stride, cfg.start)
+        ui_update = self._ui_task(label, total)
+        fr = read_frames(cfg.input, stride=cfg.stride, limit=cfg.limit, max_side=cfg.max_side, start=cfg.start,
+                         on_frame=lambda k: ui_update(k, "", max(k, total)))
+        meta = {"fps": fr.fps, "source_size": list(fr.source_size), "summary": f"{fr.n} frames {fr.width}x{fr.height}",
+                "stats": {"n_frames": fr.n, "width": fr.width, "height": fr.height}}
+        return {"images": fr.images, "source_indices": fr.source_indices}, meta
+
+    def _ui_task(self, label, total):
+        return self._ui.task(label, total)
+
+    def _persons(self, label, ui, images):
+        from cogs.preprocess.persons import detect_persons, refine_masks_sam2
+
+        T = len(images)
+        update = ui.task(label, T)
+        track = detect_persons(images, on_frame=lambda k: update(k), mask_threshold=self.cfg.person_threshold)
+        if self.cfg.sam2_checkpoint is not None:
+            update2 = ui.task(f"{label} (sam2)", T)
+            track.masks = refine_masks_sam2(images, track, self.cfg.sam2_checkpoint, self.cfg.sam2_config, on_frame=lambda k: update2(k))
+        n = int(track.detected.sum())
+        missing = [i for i in range(T) if not track.detected[i]]
+        meta = {"summary": f"person in {n}/{T} frames", "stats": {"detected": n, "missing_frames": missing[:50]}}
+        if missing and n:
+            log.warning("no person found in %d frame(s): %s%s; the body there is interpolated",
+                        len(missing), missing[:10], "..." if len(missing) > 10 else "")
+        return track.arrays(), meta
+
+    def _objects(self, label, ui, images, pe):
+        from cogs.preprocess import objects as O
+
+        cfg = self.cfg
+        T, H, W, _ = images.shape
+        update = ui.task(label, T)
+        if cfg.object_masks is not None:
+            masks = O.read_mask_folder(cfg.object_masks, T, (W, H), self.source_indices)
+            conf = masks.reshape(T, -1).any(1).astype(np.float64)
+            update(T)
+        else:
+            k = cfg.object_box_frame
+            O.check_box(cfg.object_box, self.source_size, k, T)
+            box = O.scale_box(cfg.object_box, self.source_size, (W, H))
+            if cfg.sam2_checkpoint is not None:
+                masks = O.propagate_masks_sam2(images, box, k, cfg.sam2_checkpoint, cfg.sam2_config, self.out / ".cache" / "sam2", on_frame=lambda n: update(n))
+                conf = masks.reshape(T, -1).any(1).astype(np.float64)
+            else:
+                prompt = O.grabcut_box(images[k], box)
+                masks, conf = O.propagate_masks(images, prompt, k, human_probs=pe["probs"], on_frame=lambda n: update(n))
+        if not masks.any():
+            raise UserError("the object masks are empty in every frame (check --object-box / --object-masks)")
+        n = int(masks.reshape(T, -1).any(1).sum())
+        lost = [i for i in range(T) if not masks[i].any()]
+        return {"masks": masks, "confidence": conf}, {"summary": f"object in {n}/{T} frames", "stats": {"frames_with_object": n, "empty_frames": lost}}
+
+    def _cameras(self, label, ui, images, person_masks, obj_masks, K):
+        from cogs.preprocess import sfm as S
+
+        cfg = self.cfg
+        T = len(images)
+        static = np.stack([S.feature_mask(person_masks[t], None if obj_masks is None else obj_masks[t], cfg.mask_dilate_px) for t in range(T)])
+        update = ui.task(label, 3 * T)
+        phases = {"features": 0, "matching": T, "mapping": T + 1, "rotations": T}
+
+        def prog(phase, done, total):
+            base = phases.get(phase, 0)
+            span = 1 if phase == "matching" else T
+            update(base + int(done * span / max(total, 1)), phase, 2 * T + 1)
+
+        stats: dict = {}
+        method = None
+        if cfg.sfm in ("auto", "colmap") and T >= 3:
+            matching = cfg.matching if cfg.matching != "auto" else ("exhaustive" if T <= cfg.exhaustive_max_frames else "sequential")
+            poses, xyz, rgb, st = S.run_colmap(images, static, K, self.out / ".cache" / "colmap", matching=matching, progress=prog)
+            st["matching"] = matching
+            stats["colmap"] = st
+            w2c, reg = S.fill_unregistered(poses, T)
+            frac = reg.mean()
+            parallax = S.parallax_ratio(w2c, reg, xyz)
+            stats["colmap"].update(registered_fraction=float(frac), parallax=parallax)
+            enough_points = len(xyz) >= max(100, 5 * int(reg.sum()))
+            if frac >= cfg.min_registered and parallax >= cfg.min_parallax and enough_points:
+                method = "colmap"
+            elif frac >= cfg.min_registered and enough_points:
+                # Rotations are good, but the points have no usable depth: keep the rotations
+                # and fix the centre (a tripod-like clip).
+                w2c[:, :3, 3] = 0.0  # every camera at the world origin
+                method, xyz, rgb = "colmap-rotation", np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+            elif cfg.sfm == "colmap":
+                raise UserError(f"structure from motion posed {reg.sum()}/{T} frames with {len(xyz)} points; try --sfm auto (rotation-only fallback)")
+        if method is None:
+            phases.update(features=0, rotations=T)
+            w2c, reg, st = S.rotation_only(images, static, K, progress=prog)
+            stats["rotation"] = st
+            method, xyz, rgb = "rotation", np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+        update(3 * T, method, 3 * T)
+        n_reg = int(reg.sum())
+        meta = {"method": method, "summary": f"{method}: {n_reg}/{T} frames posed, {len(xyz)} points", "stats": stats}
+        return {"world_to_camera": w2c, "registered": reg, "points_xyz": xyz, "points_rgb": rgb, "static": static}, meta
+
+    def _body(self, label, ui, images, pe, cam, cmeta, K):
+        import torch
+
+        from cogs.body import load_body_model
+        from cogs.preprocess import bodyfit as B
+        from cogs.preprocess import sfm as S
+        from cogs.preprocess import world as Wd
+
+        cfg = self.cfg
+        T = len(images)
+        iters = cfg.body_iterations
+        update = ui.task(label, iters + max(20, iters // 4) + 2)
+        model = load_body_model(cfg.body_model)
+        kp2d, kp3d = pe["kp2d"].astype(np.float64), pe["kp3d"].astype(np.float64)
+        shape = B.choose_shape(model, kp3d)
+        scale = B.limb_scale(model, shape, kp3d)
+        R_cam, t_cam = B.init_camera_space(kp2d, kp3d, K, scale)
+        kp3d_f = B.fill_missing(kp3d)
+        feet_cam = t_cam[:, None, :] + scale * kp3d_f[:, Wd.FOOT_LANDMARKS]
+        up_cam = Wd.up_in_camera(kp3d)
+        update(1, "aligning world")
+        w2c_s, reg = cam["world_to_camera"], cam["registered"].astype(bool)
+        xyz_s, rgb = cam["points_xyz"], cam["points_rgb"]
+        method = cmeta["method"]
+        notes = {}
+        if method == "colmap":
+            al = Wd.align_sfm(w2c_s, reg, xyz_s, K, kp2d, up_cam, feet_cam, t_cam)
+            w2c = al.cameras(w2c_s)
+            xyz = al.points(xyz_s)
+        else:
+            al, cam_h = Wd.align_static(w2c_s, kp2d, up_cam, feet_cam, t_cam)
+            w2c = al.cameras(w2c_s)
+            dist = float(np.nanmedian(np.linalg.norm(t_cam, axis=1)))
+            xyz, rgb = S.proxy_points(images, cam["static"].astype(bool), K, w2c, np.array([0.0, 0.0, 1.0]), 0.0,
+                                      backdrop_distance=max(3.0, 2.5 * dist))
+            notes["camera_height_m"] = cam_h
+        notes.update(al.notes)
+        R_w, root_w = B.camera_to_world_init(R_cam, t_cam, w2c)
+        t0 = time.perf_counter()
+        fit = B.fit_body(model, kp2d, kp3d, K, w2c, shape, R_w, root_w, ground=(np.array([0.0, 0.0, 1.0]), 0.0),
+                         iterations=iters, on_step=lambda i, loss: update(1 + i, f"loss {loss:.4g}"))
+        update(iters + max(20, iters // 4) + 2, f"mean 2D error {np.nanmean(fit.reprojection_error):.3f} of height")
+        hand = [model.bone_index(b) for b in ("wrist.L", "wrist.R", "finger3-1.L", "finger3-1.R")]
+        stats = {
+            "scale_m_per_unit": al.scale, "ground_from": al.ground_source, "shape": shape.tolist(),
+            "reprojection_error_mean": float(np.nanmean(fit.reprojection_error)),
+            "reprojection_error_max": float(np.nanmax(fit.reprojection_error)), "fit_seconds": time.perf_counter() - t0,
+            **notes,
+        }
+        del torch
+        return {
+            "world_to_camera": w2c, "registered": reg, "points_xyz": xyz.astype(np.float32), "points_rgb": rgb.astype(np.uint8),
+            "shape": fit.track.shape, "pose": fit.track.pose, "transl": fit.track.transl, "joints": fit.joints_world,
+            "hand_joints": fit.joints_world[:, hand], "root": fit.joints_world[:, model.bone_index("root")],
+            "reprojection_error": fit.reprojection_error,
+        }, {"summary": f"{cfg.body_model} on {T} frames, 2D error {stats['reprojection_error_mean']:.3f} of height", "stats": stats}
+
+    def _object_pose(self, label, ui, ob, human_masks, bo, K):
+        from cogs.preprocess.objectfit import fit_object
+
+        masks = ob["masks"].astype(bool)
+        T = len(masks)
+        update = ui.task(label, T)
+        fit = fit_object(masks, ob["confidence"], K, bo["world_to_camera"], bo["hand_joints"].astype(np.float64),
+                         bo["root"].astype(np.float64), human_masks=human_masks, ground=(np.array([0.0, 0.0, 1.0]), 0.0),
+                         on_frame=lambda k: update(k))
+        stats = {"radii_m": fit.radii_m.tolist(), "mean_iou": float(np.nanmean(fit.iou)), "depth_source": fit.depth_source}
+        return {"quats": fit.track.quats, "translations": fit.track.translations, "centre": fit.track.centre,
+                "radii": fit.radii_m, "iou": fit.iou}, {"summary": f"silhouette IoU {stats['mean_iou']:.2f}", "stats": stats}
+
+    def _planes(self, label, ui, bo):
+        from cogs.geometry.planes import ransac_planes
+
+        update = ui.task(label, 1)
+        xyz = bo["points_xyz"].astype(np.float64)
+        planes = [{"normal": [0.0, 0.0, 1.0], "offset": 0.0, "label": "ground", "inliers": -1}]
+        if len(xyz) >= 50:
+            found = ransac_planes(xyz, max_planes=self.cfg.max_planes, threshold_m=0.03, min_inliers=max(50, int(0.05 * len(xyz))), iterations=500, seed=0)
+            for i, p in enumerate(found):
+                n, d = p.normal, p.offset
+                if abs(n[2]) > 0.95 and abs(d * np.sign(n[2])) < 0.1:
+                    planes[0]["inliers"] = int(len(p.inliers))  # the ground, confirmed by the points
+                    continue
+                planes.append({"normal": n.tolist(), "offset": float(d), "label": f"plane{i}", "inliers": int(len(p.inliers))})
+        update(1, f"{len(planes)} planes")
+        arr = np.array([[*p["normal"], p["offset"]] for p in planes])
+        return {"planes": arr, "inliers": np.array([p["inliers"] for p in planes])}, {
+            "labels": [p["label"] for p in planes], "summary": f"{len(planes)} planes", "stats": {"n_planes": len(planes)}}
+
+    def _write_scene(self, images, human_masks, obj_masks, bo, bmeta, op, pl, K, cmeta):
+        from cogs.data.scene import BodyTrack, CameraTrack, ObjectTrack, PlaneSpec, Scene, default_frame_ids, save_scene
+        from cogs.data.validate import check_scene
+        from cogs.data.scene import SceneError
+
+        T, H, W, _ = images.shape
+        labels = json.loads((self.cache.root / "planes.json").read_text())["labels"]
+        planes = [PlaneSpec(np.asarray(p[:3], np.float64) / np.linalg.norm(p[:3]), float(p[3]), lab) for p, lab in zip(pl["planes"], labels)]
+        xyz, rgb = bo["points_xyz"], bo["points_rgb"]
+        if len(xyz) == 0:
+            raise UserError("no scene points could be made (no static pixels?)")
+        obj = None
+        if op is not None:
+            obj = ObjectTrack(centre=op["centre"].astype(np.float64), quats=op["quats"].astype(np.float64), translations=op["translations"].astype(np.float64))
+        source = {
+            "tool": "cogs preprocess",
+            "input": str(Path(self.cfg.input)),
+            "source_frames": [int(i) for i in self.source_indices],
+            "source_size": list(self.source_size),
+            "camera_method": cmeta["method"],
+            "registered_frames": [int(i) for i in np.flatnonzero(bo["registered"])],
+            "split_protocol": "hosnerf-16" if T >= 32 else "every 4th from frame 2",
+            "body_fit": bmeta.get("stats", {}),
+        }
+        if op is not None:
+            source["object_init"] = {"shape": "ellipsoid", "radii_m": [float(r) for r in op["radii"]]}
+        scene = Scene(
+            root=None,
+            name=self.cfg.name or Path(self.cfg.input).stem,
+            width=W, height=H, fps=self.fps,
+            frame_ids=default_frame_ids(T),
+            split=hosnerf_split(T),
+            cameras=CameraTrack(K=np.tile(K, (T, 1, 1)), world_to_camera=bo["world_to_camera"].astype(np.float64)),
+            body=BodyTrack(model=self.cfg.body_model, shape=bo["shape"], pose=bo["pose"], transl=bo["transl"]),
+            object=obj,
+            points_xyz=xyz.astype(np.float32),
+            points_rgb=rgb.astype(np.uint8),
+            planes=planes,
+            source=source,
+        )
+        scene.set_pixels(images, human_masks, obj_masks)
+        save_scene(scene, self.out)
+        problems = check_scene(self.out)
+        if problems:  # a bug in cogs, not the user's input: keep the traceback
+            raise AssertionError(str(SceneError(self.out, problems)))
+
+
+def _known_models() -> list[str]:
+    from cogs.body import MODELS
+
+    return sorted(MODELS)
+
+
+def _estimate_frames(path, stride: int, start: int) -> int:
+    p = Path(path)
+    if p.is_dir():
+        return max(1, (len([f for f in p.iterdir() if not f.name.startswith(".")]) - start + stride - 1) // stride)
+    try:
+        import av
+
+        with av.open(str(p)) as c:
+            n = c.streams.video[0].frames if c.streams.video else 0
+        return max(1, (n - start + stride - 1) // stride) if n else 1
+    except Exception:
+        return 1

@@ -1,0 +1,359 @@
+"""Step 4: cameras and sparse points of the static scene.
+
+**Structure from motion** (pycolmap, as measured in shared/FACTS.md). Frames are written as
+PNGs with masks (``X.png`` -> ``X.png.png``, black = no features) that hide the person and
+the object, so only the static scene is matched. One SIMPLE_PINHOLE camera shared by every
+frame, its focal length fixed at the prior (hand-held phone clips are mostly rotation:
+letting bundle adjustment refine the focal gives inconsistent fragments), exhaustive
+matching for short clips (sequential matching of a nearly panoramic clip leaves too few
+wide-baseline pairs: 33/40 frames in 6 fragments with 66 points on the shared clip, against
+40/40 and ~2k points exhaustively), sequential beyond, relaxed initialisation (homography-dominated pairs accepted, small
+triangulation angles allowed), watermark detection off.
+
+**Rotation-only fallback**, used when most frames fail to register or the reconstruction
+has no usable parallax (a tripod-like clip): per consecutive-frame homography of the
+background (RANSAC), the rotation ``K^-1 H K`` (projected to SO(3) with the Kabsch fit on
+the inlier bearings), chained from frame 0. The camera centre is fixed; the scene's depth
+and scale then come from the ground plane and the body's metric size (see
+``proxy_points``).
+
+Both return cameras in an arbitrary world; ``cogs.preprocess.pipeline`` moves them into the
+metric, z-up world the body fit defines.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SfmResult:
+    K: np.ndarray  # [3, 3]
+    world_to_camera: np.ndarray  # [T, 4, 4]
+    registered: np.ndarray  # [T] bool: pose estimated (others interpolated)
+    points_xyz: np.ndarray  # [P, 3]
+    points_rgb: np.ndarray  # [P, 3] uint8
+    method: str  # "colmap" | "rotation"
+    stats: dict = field(default_factory=dict)
+
+    def arrays(self) -> dict:
+        return {
+            "K": self.K,
+            "world_to_camera": self.world_to_camera,
+            "registered": self.registered,
+            "points_xyz": self.points_xyz,
+            "points_rgb": self.points_rgb,
+        }
+
+    @classmethod
+    def from_arrays(cls, a: dict, method: str, stats: dict) -> "SfmResult":
+        return cls(a["K"], a["world_to_camera"], a["registered"].astype(bool), a["points_xyz"], a["points_rgb"], method, stats)
+
+
+def intrinsics(width: int, height: int, focal_px: float) -> np.ndarray:
+    return np.array([[focal_px, 0.0, 0.5 * width], [0.0, focal_px, 0.5 * height], [0.0, 0.0, 1.0]])
+
+
+def feature_mask(person: np.ndarray, obj: np.ndarray | None, dilate_px: int) -> np.ndarray:
+    """[H, W] bool: True where features may be taken (the static scene)."""
+    import cv2
+
+    moving = person.copy()
+    if obj is not None:
+        moving |= obj
+    if dilate_px > 0:
+        k = np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8)
+        moving = cv2.dilate(moving.astype(np.uint8), k) > 0
+    return ~moving
+
+
+# -- pycolmap -------------------------------------------------------------------------
+
+
+def import_pycolmap():
+    # FACTS: importing pycolmap before cv2/PIL makes a later PNG write abort the process.
+    import cv2  # noqa: F401
+    import PIL.Image  # noqa: F401
+
+    from cogs.errors import UserError
+
+    try:
+        import pycolmap
+    except ImportError as e:
+        raise UserError(
+            f"pycolmap is not installed ({e}); install the preprocessing extra: "
+            'pip install -e ".[preprocess]" (see docs/preprocess.md)'
+        ) from None
+    return pycolmap
+
+
+def run_colmap(
+    images: np.ndarray,
+    static_masks: np.ndarray,
+    K: np.ndarray,
+    work_dir: Path,
+    overlap: int = 10,
+    matching: str = "exhaustive",
+    progress=None,
+    seed: int = 0,
+) -> tuple[dict[int, np.ndarray], np.ndarray, np.ndarray, dict]:
+    """Incremental SfM on frames [T, H, W, 3] with feature masks [T, H, W] (True = usable).
+
+    ``progress(phase, done, total)`` is called as work advances. Returns (world_to_camera
+    per registered frame index, points [P, 3], colours [P, 3] uint8, stats).
+    """
+    pycolmap = import_pycolmap()
+    from PIL import Image
+
+    # COLMAP and Ceres log every step (and benign solver warnings) to stderr; keep errors.
+    pycolmap.logging.minloglevel = 2
+    pycolmap.logging.stderrthreshold = 2
+    work_dir = Path(work_dir)
+    if work_dir.exists():
+        shutil.rmtree(work_dir)
+    img_dir, mask_dir, out_dir = work_dir / "images", work_dir / "masks", work_dir / "sparse"
+    for d in (img_dir, mask_dir, out_dir):
+        d.mkdir(parents=True)
+    T = len(images)
+    names = [f"{t:06d}.png" for t in range(T)]
+    for t in range(T):
+        Image.fromarray(images[t]).save(img_dir / names[t], compress_level=1)
+        Image.fromarray(static_masks[t].astype(np.uint8) * 255).save(mask_dir / f"{names[t]}.png")
+    db = work_dir / "database.db"
+    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "SIMPLE_PINHOLE"
+    reader.camera_params = f"{f},{cx},{cy}"
+    reader.mask_path = str(mask_dir)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.use_gpu = False
+    chunk = max(1, min(8, T // 5 or 1))
+    for s in range(0, T, chunk):
+        if s > 0:
+            reader.existing_camera_id = 1  # one camera for every frame, also across calls
+        pycolmap.extract_features(
+            db, img_dir, image_names=names[s : s + chunk], camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
+        )
+        if progress:
+            progress("features", min(T, s + chunk), T)
+
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.max_H_inlier_ratio = 0.99  # hand-held clips are nearly panoramic
+    verification.detect_watermark = False
+    match_opts = pycolmap.FeatureMatchingOptions()
+    match_opts.use_gpu = False
+    if matching == "exhaustive":
+        pycolmap.match_exhaustive(db, matching_options=match_opts, verification_options=verification, device=pycolmap.Device.cpu)
+    else:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = overlap
+        pairing.quadratic_overlap = True
+        pycolmap.match_sequential(db, matching_options=match_opts, pairing_options=pairing, verification_options=verification, device=pycolmap.Device.cpu)
+    if progress:
+        progress("matching", 1, 1)
+
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.ba_refine_focal_length = False
+    opts.ba_refine_principal_point = False
+    opts.ba_refine_extra_params = False
+    opts.ignore_watermarks = True
+    opts.random_seed = seed
+    opts.min_model_size = 3
+    opts.mapper.init_min_tri_angle = 2.0
+    opts.mapper.init_min_num_inliers = 50
+    opts.mapper.filter_min_tri_angle = 0.5
+    opts.triangulation.min_angle = 0.5
+    registered = [0]
+
+    def on_image():
+        registered[0] += 1
+        if progress:
+            progress("mapping", min(registered[0], T), T)
+
+    recs = pycolmap.incremental_mapping(db, img_dir, out_dir, options=opts, next_image_callback=on_image)
+    if not recs:
+        return {}, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"n_models": 0}
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    poses: dict[int, np.ndarray] = {}
+    for img in rec.images.values():
+        if not img.has_pose:
+            continue
+        t = names.index(img.name)
+        m = np.eye(4)
+        m[:3] = img.cam_from_world().matrix()
+        poses[t] = m
+    xyz, rgb, err = [], [], []
+    for p in rec.points3D.values():
+        xyz.append(p.xyz)
+        rgb.append(p.color)
+        err.append(p.error)
+    stats = {
+        "n_models": len(recs),
+        "n_registered": len(poses),
+        "n_points": len(xyz),
+        "mean_reprojection_error_px": float(np.mean(err)) if err else None,
+    }
+    if progress:
+        progress("mapping", T, T)
+    return poses, np.asarray(xyz, np.float64).reshape(-1, 3), np.asarray(rgb, np.uint8).reshape(-1, 3), stats
+
+
+# -- pose interpolation ---------------------------------------------------------------
+
+
+def fill_unregistered(w2c: dict[int, np.ndarray], T: int) -> tuple[np.ndarray, np.ndarray]:
+    """Poses for all T frames from the registered ones: SLERP rotation and linear centre
+    between registered neighbours, the nearest pose held beyond the ends."""
+    import torch
+
+    from cogs.geometry.rotations import quat_to_rotmat, rotmat_to_quat, slerp
+
+    known = sorted(w2c)
+    out = np.zeros((T, 4, 4))
+    reg = np.zeros(T, bool)
+    if not known:
+        out[:] = np.eye(4)
+        return out, reg
+    for t in range(T):
+        if t in w2c:
+            out[t] = w2c[t]
+            reg[t] = True
+            continue
+        after = [k for k in known if k > t]
+        before = [k for k in known if k < t]
+        if not before or not after:
+            out[t] = w2c[after[0] if not before else before[-1]]
+            continue
+        a, b = before[-1], after[0]
+        u = (t - a) / (b - a)
+        qa = rotmat_to_quat(torch.from_numpy(w2c[a][:3, :3]))
+        qb = rotmat_to_quat(torch.from_numpy(w2c[b][:3, :3]))
+        R = quat_to_rotmat(slerp(qa, qb, torch.tensor(u, dtype=torch.float64))).numpy()
+        ca = -w2c[a][:3, :3].T @ w2c[a][:3, 3]
+        cb = -w2c[b][:3, :3].T @ w2c[b][:3, 3]
+        c = (1 - u) * ca + u * cb
+        out[t] = np.eye(4)
+        out[t, :3, :3] = R
+        out[t, :3, 3] = -R @ c
+    return out, reg
+
+
+def parallax_ratio(w2c: np.ndarray, registered: np.ndarray, points: np.ndarray) -> float:
+    """Spread of the registered camera centres over the median point depth (0 = pure rotation)."""
+    if registered.sum() < 2 or len(points) == 0:
+        return 0.0
+    R, t = w2c[registered, :3, :3], w2c[registered, :3, 3]
+    centres = -np.einsum("tji,tj->ti", R, t)
+    spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max())
+    depth = np.median([(points @ R[i].T + t[i])[:, 2] for i in range(len(R))], axis=1)
+    med = float(np.median(np.abs(depth)))
+    return spread / max(med, 1e-9)
+
+
+# -- rotation-only fallback -----------------------------------------------------------
+
+
+def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """R minimising sum |R a_i - b_i|^2 for unit vectors [N, 3]."""
+    U, _, Vt = np.linalg.svd(b.T @ a)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def rotation_only(images: np.ndarray, static_masks: np.ndarray, K: np.ndarray, progress=None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Camera rotations from background homographies, chained from frame 0.
+
+    Returns (world_to_camera [T, 4, 4] with zero translation, ok [T] bool: the pair to
+    the previous frame gave a rotation, stats).
+    """
+    import cv2
+
+    T = len(images)
+    sift = cv2.SIFT_create(nfeatures=3000)
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    Kinv = np.linalg.inv(K)
+    feats = []
+    for t in range(T):
+        grey = cv2.cvtColor(images[t], cv2.COLOR_RGB2GRAY)
+        kp, desc = sift.detectAndCompute(grey, static_masks[t].astype(np.uint8) * 255)
+        feats.append((np.array([k.pt for k in kp], np.float64).reshape(-1, 2), desc))
+        if progress:
+            progress("features", t + 1, T)
+    w2c = np.tile(np.eye(4), (T, 1, 1))
+    ok = np.zeros(T, bool)
+    ok[0] = True
+    inlier_counts = []
+    for t in range(1, T):
+        R_rel = np.eye(3)
+        (pa, da), (pb, db) = feats[t - 1], feats[t]
+        if da is not None and db is not None and len(pa) >= 8 and len(pb) >= 8:
+            knn = matcher.knnMatch(da, db, k=2)
+            good = [m for m, *rest in knn if rest and m.distance < 0.75 * rest[0].distance]
+            if len(good) >= 12:
+                a = pa[[m.queryIdx for m in good]]
+                b = pb[[m.trainIdx for m in good]]
+                H, inl = cv2.findHomography(a, b, cv2.RANSAC, 2.0)
+                if H is not None and inl.sum() >= 12:
+                    inl = inl.ravel().astype(bool)
+                    ba = np.c_[a[inl], np.ones(inl.sum())] @ Kinv.T
+                    bb = np.c_[b[inl], np.ones(inl.sum())] @ Kinv.T
+                    ba /= np.linalg.norm(ba, axis=1, keepdims=True)
+                    bb /= np.linalg.norm(bb, axis=1, keepdims=True)
+                    R_rel = _kabsch(ba, bb)  # camera t-1 -> camera t
+                    ok[t] = True
+                    inlier_counts.append(int(inl.sum()))
+        w2c[t, :3, :3] = R_rel @ w2c[t - 1, :3, :3]
+        if progress:
+            progress("rotations", t + 1, T)
+    stats = {"pairs_ok": int(ok[1:].sum()), "median_inliers": float(np.median(inlier_counts)) if inlier_counts else 0.0}
+    return w2c, ok, stats
+
+
+def proxy_points(
+    images: np.ndarray,
+    static_masks: np.ndarray,
+    K: np.ndarray,
+    w2c: np.ndarray,
+    ground_normal: np.ndarray,
+    ground_offset: float,
+    backdrop_distance: float,
+    n_points: int = 20000,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Scene points without triangulation: static pixels back-projected onto the ground
+    plane (rays that hit it within reach) or onto a backdrop sphere of radius
+    ``backdrop_distance`` around the camera. Used when the camera barely translates."""
+    rng = np.random.default_rng(seed)
+    T, H, W, _ = images.shape
+    per = max(1, n_points // T)
+    Kinv = np.linalg.inv(K)
+    xyz, rgb = [], []
+    for t in range(T):
+        ys, xs = np.nonzero(static_masks[t])
+        if len(xs) == 0:
+            continue
+        pick = rng.choice(len(xs), size=min(per, len(xs)), replace=False)
+        u, v = xs[pick] + 0.5, ys[pick] + 0.5
+        rays_c = np.c_[u, v, np.ones_like(u)] @ Kinv.T
+        R, tt = w2c[t, :3, :3], w2c[t, :3, 3]
+        centre = -R.T @ tt
+        rays_w = rays_c @ R  # R^T applied to each row
+        rays_w /= np.linalg.norm(rays_w, axis=1, keepdims=True)
+        denom = rays_w @ ground_normal
+        s_ground = -(centre @ ground_normal + ground_offset) / np.where(np.abs(denom) > 1e-9, denom, np.nan)
+        use_ground = np.isfinite(s_ground) & (s_ground > 0) & (s_ground < backdrop_distance)
+        s = np.where(use_ground, s_ground, backdrop_distance)
+        xyz.append(centre + rays_w * s[:, None])
+        rgb.append(images[t][ys[pick], xs[pick]])
+    if not xyz:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    return np.concatenate(xyz), np.concatenate(rgb).astype(np.uint8)

@@ -1,0 +1,399 @@
+"""`cogs preprocess`: each step on small inputs the tests make themselves.
+
+MediaPipe and pycolmap are optional (the `preprocess` extra); tests that need them skip
+with a reason when they are missing. Everything else runs on synthetic frames.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from cogs.errors import UserError
+from cogs.preprocess import frames as F
+from cogs.preprocess import objects as O
+from cogs.preprocess import sfm as S
+from cogs.preprocess.pipeline import Cache, hosnerf_split
+
+
+def _texture(h: int, w: int, seed: int = 0) -> np.ndarray:
+    """A smooth random colour texture with corners SIFT can match."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    small = rng.integers(0, 255, (h // 8 + 1, w // 8 + 1, 3), dtype=np.uint8)
+    big = cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+    noise = rng.integers(0, 40, (h, w, 3))
+    return np.clip(big.astype(int) + noise - 20, 0, 255).astype(np.uint8)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.logical_and(a, b).sum() / max(np.logical_or(a, b).sum(), 1))
+
+
+# -- frames ---------------------------------------------------------------------------
+
+
+def test_video_frames_respect_stride_limit_and_max_side(tmp_path):
+    video = np.stack([np.full((120, 80, 3), 10 * i, np.uint8) for i in range(10)])
+    F.write_video(tmp_path / "v.mp4", video, fps=10)
+    fr = F.read_frames(tmp_path / "v.mp4", stride=2, limit=3, max_side=60)
+    assert fr.images.shape == (3, 60, 40, 3)
+    assert fr.source_indices.tolist() == [0, 2, 4]
+    assert fr.fps == pytest.approx(5.0)
+    assert fr.source_size == (80, 120)
+    # Frame 4 of the source was grey level 40 (H.264 is lossy: within a few levels).
+    assert abs(float(fr.images[2].mean()) - 40) < 4
+
+
+def test_image_folder_is_read_in_name_order(tmp_path):
+    from cogs.data.io import write_image
+
+    for i in (2, 0, 1):
+        write_image(tmp_path / f"f{i}.png", np.full((10, 12, 3), 50 * i, np.uint8))
+    fr = F.read_frames(tmp_path, max_side=None)
+    assert [int(im.mean()) for im in fr.images] == [0, 50, 100]
+
+
+def _missing(p):
+    return p / "missing.mp4"
+
+
+def _garbage(p):
+    (p / "bad.mp4").write_bytes(b"not a video at all")
+    return p / "bad.mp4"
+
+
+def _empty_dir(p):
+    (p / "empty").mkdir()
+    return p / "empty"
+
+
+@pytest.mark.parametrize("make, message", [
+    (_missing, "does not exist"),
+    (_garbage, "bad.mp4"),
+    (_empty_dir, "holds no images"),
+])  # fmt: skip
+def test_unusable_inputs_raise_user_errors_naming_the_file(tmp_path, make, message):
+    with pytest.raises(UserError, match=message):
+        F.read_frames(make(tmp_path))
+
+
+def test_frames_of_different_sizes_in_a_folder_are_refused(tmp_path):
+    from cogs.data.io import write_image
+
+    write_image(tmp_path / "a.png", np.zeros((10, 10, 3), np.uint8))
+    write_image(tmp_path / "b.png", np.zeros((12, 10, 3), np.uint8))
+    with pytest.raises(UserError, match="b.png"):
+        F.read_frames(tmp_path)
+
+
+# -- split and cache ------------------------------------------------------------------
+
+
+def test_hosnerf_split_holds_out_16_uniform_frames_for_long_clips():
+    s = hosnerf_split(40)
+    assert s["test"] == [2 * i for i in range(16)]
+    assert sorted(s["train"] + s["test"]) == list(range(40))
+
+
+def test_short_clips_hold_out_every_fourth_frame_and_keep_tiny_clips_for_training():
+    assert hosnerf_split(12) == {"train": [0, 1, 3, 4, 5, 7, 8, 9, 11], "test": [2, 6, 10]}
+    assert hosnerf_split(2) == {"train": [0, 1], "test": []}
+
+
+def test_cache_returns_a_step_only_while_its_key_matches(tmp_path):
+    c = Cache(tmp_path)
+    k1 = c.key("frames", {"stride": 1}, [])
+    c.save("frames", k1, {"x": np.arange(3)}, {"summary": "s"}, compress=True)
+    arrays, meta = c.load("frames", k1)
+    assert arrays["x"].tolist() == [0, 1, 2] and meta["summary"] == "s"
+    assert c.load("frames", c.key("frames", {"stride": 2}, [])) is None
+    c.keys["frames"] = k1
+    k_dep = c.key("persons", {}, ["frames"])
+    c.keys["frames"] = k1 + "changed"
+    assert c.key("persons", {}, ["frames"]) != k_dep  # an upstream change invalidates
+    assert Cache(tmp_path, force=True).load("frames", k1) is None
+
+
+def test_a_recomputed_step_invalidates_the_steps_that_read_it(tmp_path):
+    from types import SimpleNamespace
+
+    from cogs.preprocess.pipeline import _Progress, _Runner
+
+    runner = _Runner(SimpleNamespace(out=tmp_path, force=False))
+    ui = _Progress(enabled=False)
+    calls = []
+
+    def compute(name):
+        return lambda label: (calls.append(name) or {"x": np.zeros(1)}, {})
+
+    for _ in range(2):
+        runner.cache.keys.clear()
+        runner._step(ui, 1, "a", {}, [], compute("a"))
+        runner._step(ui, 2, "b", {}, ["a"], compute("b"))
+    assert calls == ["a", "b"]  # the second pass is all cached
+    (tmp_path / ".cache" / "a.json").unlink()  # step a lost: recomputed with the same options
+    runner.cache.keys.clear()
+    runner._step(ui, 1, "a", {}, [], compute("a"))
+    runner._step(ui, 2, "b", {}, ["a"], compute("b"))
+    assert calls == ["a", "b", "a", "b"]
+
+
+# -- objects --------------------------------------------------------------------------
+
+
+def _object_clip(T=8, H=120, W=160):
+    """A textured background, a 'person' bar and an orange disc that moves and passes it."""
+    bg = _texture(H, W, seed=1) // 2 + 60
+    yy, xx = np.mgrid[:H, :W]
+    images, obj, person = [], [], []
+    for t in range(T):
+        im = bg.copy()
+        pm = (np.abs(xx - 80) < 12) & (yy > 20)
+        im[pm] = (90, 60, 140)
+        cx, cy = 30 + 12 * t, 60 + 10 * np.sin(t)
+        om = (xx + 0.5 - cx) ** 2 + (yy + 0.5 - cy) ** 2 < 11**2
+        im[om] = (235, 120, 30)
+        images.append(im)
+        obj.append(om)
+        person.append(pm & ~om)
+    return np.stack(images), np.stack(obj), np.stack(person)
+
+
+def test_object_masks_follow_a_moving_object_from_one_box():
+    images, gt, person = _object_clip()
+    k = 3
+    ys, xs = np.nonzero(gt[k])
+    box = np.array([xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4], float)
+    prompt = O.grabcut_box(images[k], box)
+    assert _iou(prompt, gt[k]) > 0.85
+    masks, conf = O.propagate_masks(images, prompt, k, human_probs=(person * 255).astype(np.uint8))
+    ious = [_iou(masks[t], gt[t]) for t in range(len(images))]
+    assert min(ious) > 0.8, ious
+    assert (conf > 0).all()
+
+
+def test_object_is_reported_lost_while_hidden():
+    images, gt, person = _object_clip()
+    images[5][gt[5]] = images[4][~gt[4]].mean(0).astype(np.uint8)  # frame 5: disc painted over
+    ys, xs = np.nonzero(gt[0])
+    prompt = O.grabcut_box(images[0], np.array([xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4], float))
+    masks, conf = O.propagate_masks(images, prompt, 0)
+    assert not masks[5].any() and conf[5] == 0
+    assert _iou(masks[6], gt[6]) > 0.8  # and found again after
+
+
+@pytest.mark.parametrize("box, frame, message", [
+    ((10, 10, 5, 20), 0, "x1 > x0"),
+    ((500, 10, 600, 20), 0, "outside"),
+    ((10, 10, 20, 20), 9, "--object-box-frame 9"),
+])  # fmt: skip
+def test_bad_object_prompts_raise_user_errors_naming_the_option(box, frame, message):
+    with pytest.raises(UserError, match=message):
+        O.check_box(box, (160, 120), frame, 8)
+
+
+def test_box_is_scaled_from_source_to_processed_pixels():
+    assert O.scale_box((100, 50, 200, 150), (1000, 500), (500, 250)).tolist() == [50, 25, 100, 75]
+
+
+def test_mask_folder_with_one_mask_per_source_frame_is_subsampled(tmp_path):
+    from cogs.data.io import write_mask
+
+    for i in range(6):
+        m = np.zeros((20, 30), bool)
+        m[i, :] = True
+        write_mask(tmp_path / f"{i:03d}.png", m)
+    masks = O.read_mask_folder(tmp_path, 3, (30, 20), np.array([0, 2, 4]))
+    assert [int(np.flatnonzero(m.any(1))[0]) for m in masks] == [0, 2, 4]
+    with pytest.raises(UserError, match="holds 6 masks"):
+        O.read_mask_folder(tmp_path, 4, (30, 20), None)
+
+
+# -- cameras --------------------------------------------------------------------------
+
+
+def _rot(axis: int, deg: float) -> np.ndarray:
+    from cogs.preprocess.objectfit import _axis_rotation
+
+    return _axis_rotation(axis, np.radians(deg))
+
+
+def test_rotation_only_fallback_recovers_a_panning_camera():
+    import cv2
+
+    H, W = 240, 320
+    K = S.intrinsics(W, H, 300.0)
+    pano = _texture(3 * H, 3 * W, seed=2)
+    R_true = [_rot(1, 2.0 * t) @ _rot(0, 0.7 * t) for t in range(5)]
+    images = []
+    for R in R_true:
+        # Image of a distant texture (plane at infinity, a homography): K R K_pano^-1.
+        Kp = S.intrinsics(3 * W, 3 * H, 300.0)
+        Hm = K @ R @ np.linalg.inv(Kp)
+        images.append(cv2.warpPerspective(pano, Hm, (W, H)))
+    images = np.stack(images)
+    w2c, ok, stats = S.rotation_only(images, np.ones(images.shape[:3], bool), K)
+    assert ok.all(), stats
+    from cogs.geometry.rotations import rotmat_geodesic_angle
+
+    for t in range(5):
+        rel_est = w2c[t, :3, :3] @ w2c[0, :3, :3].T
+        rel_true = R_true[t] @ R_true[0].T
+        err = np.degrees(float(rotmat_geodesic_angle(torch.tensor(rel_est), torch.tensor(rel_true))))
+        assert err < 0.3, (t, err)
+
+
+def test_unregistered_frames_get_interpolated_poses():
+    a, b = np.eye(4), np.eye(4)
+    b[:3, :3] = _rot(2, 40.0)
+    b[:3, 3] = -b[:3, :3] @ np.array([2.0, 0.0, 0.0])  # centre at x = 2
+    w2c, reg = S.fill_unregistered({1: a, 3: b}, 5)
+    assert reg.tolist() == [False, True, False, True, False]
+    np.testing.assert_allclose(w2c[0], a)
+    np.testing.assert_allclose(w2c[4], b)
+    np.testing.assert_allclose(w2c[2, :3, :3], _rot(2, 20.0), atol=1e-9)
+    np.testing.assert_allclose(-w2c[2, :3, :3].T @ w2c[2, :3, 3], [1.0, 0.0, 0.0], atol=1e-9)
+
+
+def test_world_alignment_keeps_every_projection():
+    from cogs.geometry.camera import project_points
+    from cogs.preprocess.world import Alignment, _rotation_to_z
+
+    rng = np.random.default_rng(0)
+    w2c = np.tile(np.eye(4), (3, 1, 1))
+    for t in range(3):
+        w2c[t, :3, :3] = _rot(0, 10 * t) @ _rot(1, 5 * t)
+        w2c[t, :3, 3] = [0.1 * t, 0.0, 2.0]
+    pts = rng.normal(size=(20, 3))
+    al = Alignment(scale=3.5, rotation=_rotation_to_z(np.array([0.2, -0.9, 0.1]), np.array([0.0, 0.0, 1.0])),
+                   origin=np.array([0.3, 0.2, -0.1]), ground_source="points")
+    K = S.intrinsics(64, 48, 50.0)
+    for t in range(3):
+        uv0, z0 = project_points(pts, w2c[t], K)
+        uv1, z1 = project_points(al.points(pts), al.cameras(w2c)[t], K)
+        np.testing.assert_allclose(uv1, uv0, atol=1e-9)
+        np.testing.assert_allclose(z1, 3.5 * z0, atol=1e-9)  # depth in metres
+
+
+def test_rotation_to_z_maps_the_normal_up_and_forward_to_y():
+    from cogs.preprocess.world import _rotation_to_z
+
+    n = np.array([0.0, -1.0, 0.2])
+    n /= np.linalg.norm(n)
+    R = _rotation_to_z(n, np.array([1.0, 0.0, 0.0]))
+    np.testing.assert_allclose(R @ n, [0, 0, 1], atol=1e-12)
+    f = R @ np.array([1.0, 0.0, 0.0])
+    assert f[1] > 0.99 and abs(f[0]) < 1e-12
+    assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+# -- body fit -------------------------------------------------------------------------
+
+
+def _synthetic_keypoints(model, pose, transl, w2c, K):
+    """MediaPipe-like keypoints of a posed body: mapped landmarks visible, the rest hidden."""
+    from cogs.preprocess.bodyfit import MP_TO_ANNY
+
+    T = len(pose)
+    _, joints = model.bone_transforms(pose, transl)
+    joints = joints.double().numpy()
+    kp2d = np.zeros((T, 33, 3))
+    kp3d = np.zeros((T, 33, 3))
+    for t in range(T):
+        cam = joints[t] @ w2c[t, :3, :3].T + w2c[t, :3, 3]
+        hips = 0.5 * (cam[model.bone_index("upperleg01.L")] + cam[model.bone_index("upperleg01.R")])
+        for m, b in MP_TO_ANNY:
+            p = cam[model.bone_index(b)]
+            kp2d[t, m] = [K[0, 0] * p[0] / p[2] + K[0, 2], K[1, 1] * p[1] / p[2] + K[1, 2], 1.0]
+            kp3d[t, m] = p - hips
+        # Heels and the unmapped landmarks: near the ankles / hips, invisible.
+        for m in range(33):
+            if kp2d[t, m, 2] == 0:
+                kp2d[t, m, :2] = kp2d[t, 27, :2]
+                kp3d[t, m] = kp3d[t, 27]
+    return kp2d, kp3d, joints
+
+
+def test_body_fit_reprojects_synthetic_keypoints(body_model):
+    from cogs.geometry.camera import look_at
+    from cogs.preprocess import bodyfit as B
+
+    m = body_model
+    T = 3
+    pose = torch.zeros(T, m.n_bones, 3)
+    for t in range(T):
+        pose[t, m.bone_index("upperarm01.L"), 1] = 0.6 + 0.2 * t
+        pose[t, m.bone_index("lowerleg01.R"), 0] = 0.5
+        pose[t, m.bone_index("root"), 2] = 0.3
+    transl = torch.tensor([[0.0, 0.0, 0.95]] * T)
+    H, W = 240, 160
+    K = S.intrinsics(W, H, 220.0)
+    w2c = np.stack([look_at([0.4 * t, -4.0, 1.2], [0, 0, 0.9]) for t in range(T)])
+    kp2d, kp3d, joints = _synthetic_keypoints(m, pose, transl, w2c, K)
+    shape = m.default_shape.numpy().astype(np.float64)
+    R_cam, t_cam = B.init_camera_space(kp2d, kp3d, K, 1.0)
+    # The perspective solve puts the pelvis at the right depth from the metric skeleton.
+    true_root_cam = np.einsum("tij,tj->ti", w2c[:, :3, :3], joints[:, m.bone_index("root")]) + w2c[:, :3, 3]
+    np.testing.assert_allclose(t_cam[:, 2], true_root_cam[:, 2], rtol=0.05)
+    R_w, root_w = B.camera_to_world_init(R_cam, t_cam, w2c)
+    fit = B.fit_body(m, kp2d, kp3d, K, w2c, shape, R_w, root_w, ground=(np.array([0.0, 0.0, 1.0]), 0.0), iterations=150)
+    assert np.nanmax(fit.reprojection_error) < 0.02, fit.reprojection_error
+    assert fit.track.pose.shape == (T, m.n_bones, 3) and np.isfinite(fit.track.pose).all()
+    # Metric placement: the fitted pelvis is within 15 cm of the truth.
+    err = np.linalg.norm(fit.joints_world[:, m.bone_index("root")] - joints[:, m.bone_index("root")], axis=1)
+    assert err.max() < 0.15, err
+
+
+def test_missing_keypoint_frames_are_filled_by_interpolation():
+    from cogs.preprocess.bodyfit import fill_missing
+
+    a = np.array([[0.0], [np.nan], [2.0], [np.nan]])
+    assert fill_missing(a).ravel().tolist() == [0.0, 1.0, 2.0, 2.0]
+
+
+# -- object pose ----------------------------------------------------------------------
+
+
+def test_object_fit_recovers_a_ball_carried_by_a_hand():
+    from cogs.geometry.camera import look_at
+    from cogs.preprocess.objectfit import ellipsoid_points, fit_object, silhouette
+
+    T, H, W = 6, 240, 320
+    K = S.intrinsics(W, H, 300.0)
+    w2c = np.stack([look_at([0.1 * t, -3.0, 1.0], [0, 0, 0.8]) for t in range(T)])
+    centres = np.array([[0.3, 0.0, 0.8 + 0.05 * t] for t in range(T)])
+    r = 0.12
+    pts = ellipsoid_points(np.array([r, r, r]), 400)
+    masks = np.stack([silhouette(pts @ w2c[t, :3, :3].T + (w2c[t, :3, :3] @ centres[t] + w2c[t, :3, 3]), K, (H, W)) for t in range(T)])
+    hand = centres[:, None, :] + np.array([0.0, 0.0, 0.13])  # the hand on top of the ball
+    root = np.tile([0.0, 0.0, 0.9], (T, 1))
+    fit = fit_object(masks, np.ones(T), K, w2c, np.repeat(hand, 4, axis=1), root, ground=(np.array([0.0, 0.0, 1.0]), 0.0))
+    assert fit.radii_m == pytest.approx([r, r, r], rel=0.15)
+    err = np.linalg.norm(fit.track.translations - centres, axis=1)
+    assert err.max() < 0.06, err
+    assert np.nanmin(fit.iou) > 0.85
+
+
+# -- MediaPipe (optional) -------------------------------------------------------------
+
+
+def test_pipeline_refuses_frames_without_a_person(tmp_path):
+    pytest.importorskip("mediapipe", reason="mediapipe is in the optional `preprocess` extra")
+    from cogs.data.io import write_image
+    from cogs.preprocess.command import Preprocess
+
+    for i in range(3):
+        write_image(tmp_path / "in" / f"{i}.png", _texture(96, 128, seed=i))
+    with pytest.raises(UserError, match="no person detected in any of the 3 frames"):
+        Preprocess(input=tmp_path / "in", out=tmp_path / "out", progress=False).run()
+
+
+def test_cli_reports_a_missing_video_with_exit_code_2(tmp_path, capsys):
+    from cogs.cli import main
+
+    code = main(["preprocess", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "s")])
+    assert code == 2
+    assert "nope.mp4" in capsys.readouterr().err

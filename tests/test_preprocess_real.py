@@ -1,0 +1,66 @@
+"""`cogs preprocess` end to end on real footage: 12 frames of the shared basketball clip.
+
+The clip lives outside the repository (``<repo>/../shared/data/real/basketball_dribble.mp4``,
+or the path in ``COGS_REAL_CLIP``); the test skips with a reason when it, MediaPipe or
+pycolmap is missing. It runs in CI (marked ``slow``: about a minute on two cores).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+CLIP = Path(os.environ.get("COGS_REAL_CLIP", Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "basketball_dribble.mp4"))
+# The ball on frame 5 of the clip, in pixels of the 1080x1920 source video.
+BALL_BOX = (500.0, 1260.0, 660.0, 1430.0)
+
+
+@pytest.fixture(scope="module")
+def real_scene(tmp_path_factory):
+    if not CLIP.exists():
+        pytest.skip(f"real clip not found at {CLIP} (set COGS_REAL_CLIP)")
+    pytest.importorskip("mediapipe", reason="mediapipe is in the optional `preprocess` extra")
+    pytest.importorskip("pycolmap", reason="pycolmap is in the optional `preprocess` extra")
+    from cogs.preprocess.command import Preprocess
+
+    out = tmp_path_factory.mktemp("real") / "scene"
+    cfg = Preprocess(input=CLIP, out=out, limit=12, max_side=480, object_box=BALL_BOX, object_box_frame=5,
+                     body_iterations=150, progress=False)
+    from cogs.preprocess.pipeline import run_preprocess
+
+    t0 = time.perf_counter()
+    report = run_preprocess(cfg)
+    return cfg, report, time.perf_counter() - t0
+
+
+@pytest.mark.slow
+def test_real_clip_becomes_a_scene_that_cogs_check_accepts(real_scene):
+    from cogs.data.scene import load_scene
+    from cogs.data.validate import check_scene
+
+    cfg, report, _ = real_scene
+    assert check_scene(cfg.out) == []
+    s = load_scene(cfg.out)
+    assert s.n_frames == 12 and (s.width, s.height) == (270, 480)
+    assert s.has_object and len(s.points_xyz) > 0
+    assert s.human_masks.reshape(12, -1).any(1).all()  # a person in every frame
+    # The ball, prompted on frame 5, is found around it.
+    assert s.object_masks[3:8].reshape(5, -1).any(1).all()
+    assert not np.logical_and(s.human_masks, s.object_masks).any()  # one owner per pixel
+    assert report.stats["body"]["reprojection_error_mean"] < 0.05  # of the person's height
+    assert report.preview.exists() and report.preview.stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_a_second_run_resumes_from_the_cache(real_scene):
+    from cogs.preprocess.pipeline import STEPS, run_preprocess
+
+    cfg, _, first_seconds = real_scene
+    report = run_preprocess(cfg)
+    assert set(report.cached) == set(STEPS) - {"scene"}
+    computed = sum(v for k, v in report.seconds.items() if k != "scene")
+    assert computed == 0.0
