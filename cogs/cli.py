@@ -1,9 +1,15 @@
 """The `cogs` command: one entry point, one sub-command per job.
 
-    cogs synth      write the synthetic benchmark scene
-    cogs check      validate a scene folder, listing every problem
-    cogs demo       the main job: synthesize -> (train -> eval ->) report
-    cogs doctor     what this machine offers cogs (backends, body model, LPIPS weights)
+    cogs demo         the main job: synthesize -> train (quick) -> eval -> report
+    cogs synth        write the synthetic benchmark scene
+    cogs check        validate a scene folder, listing every problem
+    cogs train        six-stage training of the three branches (resumable)
+    cogs eval         evaluation protocols -> metrics.json and renders
+    cogs ablate       the paper's ablations, one table
+    cogs render-init  the initialised branches beside the ground truth, one PNG
+    cogs preprocess   raw video -> native scene
+    cogs import       NeuMan / HumanNeRF / HOSNeRF layouts -> native scene
+    cogs doctor       what this machine offers cogs (backends, body model, LPIPS weights)
 
 Each sub-command is a dataclass whose fields are its documented options (tyro turns them
 into flags); `run()` does the work. Errors the user can cause are `UserError`s: printed
@@ -64,11 +70,23 @@ class Doctor:
 
 
 def _commands() -> dict[str, type]:
+    from cogs.commands import Ablate, Demo, Eval, RenderInit, Train
     from cogs.data.synth.command import Synth
     from cogs.preprocess.command import Preprocess
     from cogs.preprocess.importers import Import
 
-    return {"synth": Synth, "check": Check, "doctor": Doctor, "import": Import, "preprocess": Preprocess}
+    return {
+        "demo": Demo,
+        "synth": Synth,
+        "check": Check,
+        "train": Train,
+        "eval": Eval,
+        "ablate": Ablate,
+        "render-init": RenderInit,
+        "preprocess": Preprocess,
+        "import": Import,
+        "doctor": Doctor,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -27,6 +27,12 @@ def _resolved_config(preset: str, overrides: list[str]):
     return apply_overrides(get_preset(preset), overrides)
 
 
+def _synthesize(out: Path, frames: int = 100, seed: int = 0, preview: bool = False) -> None:
+    from cogs.data.synth.command import Synth
+
+    Synth(out=out, frames=frames, seed=seed, preview=preview).run()
+
+
 @dataclass
 class Train:
     """Train the three branches on a scene with the six-stage curriculum."""
@@ -117,9 +123,7 @@ class Demo:
         if (scene_dir / "scene.json").exists() and not check_scene(scene_dir):
             log.info("reusing the synthetic scene in %s", scene_dir)
         else:
-            from cogs.data.synth import SynthConfig, write_synthetic_scene
-
-            write_synthetic_scene(SynthConfig(frames=self.frames, seed=self.seed), scene_dir, preview=True)
+            _synthesize(scene_dir, frames=self.frames, seed=self.seed, preview=True)
         problems = check_scene(scene_dir)
         if problems:
             raise UserError(f"the synthesized scene failed validation: {problems[0]}")
@@ -220,9 +224,7 @@ class Ablate:
         if scene is None:
             scene = self.out / "scene"
             if not ((scene / "scene.json").exists() and not check_scene(scene)):
-                from cogs.data.synth import SynthConfig, write_synthetic_scene
-
-                write_synthetic_scene(SynthConfig(), scene, preview=False)
+                _synthesize(scene, preview=False)
         variants = {k: v for k, v in ABLATIONS.items() if not self.only or k in self.only}
         unknown = set(self.only) - set(ABLATIONS)
         if unknown:
