@@ -75,7 +75,7 @@ def test_gsplat_wrapper_maps_outputs_and_exposes_the_means2d_gradient(monkeypatc
     reference, with gsplat's return layout ([1, ...] batches, per-axis radii, "RGB+ED")."""
     gsplat = pytest.importorskip("gsplat", reason="gsplat is not importable")
     from cogs.render import gsplat_backend, torch_backend
-    from cogs.render.projection import depth_order, project_gaussians, tile_ranges
+    from cogs.render.projection import project_gaussians
 
     def fake_rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height,
                            *, near_plane, far_plane, eps2d, sh_degree, packed, tile_size,
@@ -87,9 +87,7 @@ def test_gsplat_wrapper_maps_outputs_and_exposes_the_means2d_gradient(monkeypatc
         means2d_full = proj.means2d[None]
         feats = torch.cat([colors, proj.depths[:, None]], dim=-1)
         feat, alpha = torch_backend.rasterize_pixels(
-            means2d_full[0], proj.conics, opacities, feats,
-            tile_ranges(proj.means2d, proj.radii, width, height), depth_order(proj.depths),
-            width, height)
+            means2d_full[0], proj.conics, opacities, feats, proj.radii, proj.depths, width, height)
         bg = torch.cat([backgrounds[0], torch.zeros(1)])
         D = colors.shape[-1]
         render = torch.cat([feat[..., :D] + (1 - alpha) * bg[:D],

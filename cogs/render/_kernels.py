@@ -7,19 +7,24 @@ Layout and ordering (shared with the torch reference so results match):
   so each tile's list ``ids[offsets[t]:offsets[t+1]]`` is already depth sorted.
 * ``prange`` runs over tiles: a tile owns its pixels and its slice of the intersection
   list, so there are no write races and no atomics.
-* Inside a tile the loop is Gaussian-major: each Gaussian only visits the pixels of the
-  tile inside the box where its alpha can reach 1/255 (the ellipse
-  ``d^T conic d <= 2 ln(255 o)``, slightly enlarged), which is exact: outside it the
-  reference computes alpha < 1/255 and skips the pair anyway.
+* Inside a tile the loop is Gaussian-major and SIMD across pixels. A tile's state lives in
+  flat 256-pixel arrays (row-major, 16 wide); each Gaussian visits only the rows of the
+  tile where its alpha can reach 1/255 (the ellipse ``d^T conic d <= 2 ln(255 o)``,
+  slightly enlarged; outside it the reference computes alpha < 1/255 and skips the pair
+  anyway), as one contiguous span of pixels processed branch-free with masks, which LLVM
+  vectorises (16 float32 lanes with AVX-512). Span indices are unsigned so numba emits no
+  negative-index wraparound, which would otherwise block vectorisation.
+* exp is a branch-free polynomial (``_exp_neg``, ~1e-7 relative error) because numba has
+  no vector exp; float32 throughout, FMA contraction allowed (``contract`` only, so the
+  forward and backward evaluate the same alphas and every pair lands on the same side of
+  the 1/255 and 1e-4 thresholds in both).
 * The backward replays each tile back to front from the per-pixel final transmittance and
-  last contributor (3DGS), visiting exactly the pairs the forward composited. Gradients are
-  accumulated per Gaussian over the tile's pixels in registers and written to one slot per
-  (tile, Gaussian) intersection; slots are reduced per Gaussian in intersection order.
-  Every sum has a fixed order, so results are bit-reproducible whatever the thread count.
-
-Arithmetic is float32 in the same operation order as the torch reference (no fastmath: FMA
-contraction would move pairs across the 1/255 and 1e-4 thresholds relative to it); the
-support-box bound alone is float64.
+  last contributor (3DGS), masking exactly the pairs the forward composited, skipping
+  Gaussians whose rows hold no pixel that was still open. Per-pixel gradient terms go to
+  span buffers that are summed per Gaussian (``_span_sums``, vectorised reduction with
+  a fixed association), then written to one slot per (tile, Gaussian) intersection; slots
+  are reduced per Gaussian in intersection order. Every sum has a fixed order, so results
+  are bit-reproducible whatever the thread count.
 """
 
 from __future__ import annotations
@@ -40,16 +45,100 @@ _HALF = _F32(0.5)
 _ONE = _F32(1.0)
 _ZERO = _F32(0.0)
 
+# exp(x) for x in [-20, 0]: x = k ln2 + r, |r| <= ln2/2, e^r by its degree-7 Taylor
+# polynomial (Estrin), 2^k from an integer shift (k in [-29, 0]). Below -20 every alpha is
+# far under 1/255 (o <= 1), so clamping there changes no decision.
+_EXP_XMIN = _F32(-20.0)
+_LOG2E = _F32(1.4426950408889634)
+_LN2_HI = _F32(0.693359375)
+_LN2_LO = _F32(-2.12194440e-4)
+_C2 = _F32(1.0 / 2.0)
+_C3 = _F32(1.0 / 6.0)
+_C4 = _F32(1.0 / 24.0)
+_C5 = _F32(1.0 / 120.0)
+_C6 = _F32(1.0 / 720.0)
+_C7 = _F32(1.0 / 5040.0)
+_TWO_M30 = _F32(2.0**-30)
+
+_FM = {"contract"}
+_OPTS = dict(cache=True, nogil=True, error_model="numpy", fastmath=_FM)
+
+
+@njit(**_OPTS)
+def _exp_neg(x):
+    x = max(min(x, _ZERO), _EXP_XMIN)
+    kf = np.floor(x * _LOG2E + _HALF)
+    r = x - kf * _LN2_HI
+    r = r - kf * _LN2_LO
+    r2 = r * r
+    p = (_ONE + r) + r2 * (_C2 + r * _C3) + (r2 * r2) * ((_C4 + r * _C5) + r2 * (_C6 + r * _C7))
+    return p * (_F32(np.int64(1) << (np.int64(kf) + 30)) * _TWO_M30)
+
+
+@njit(**_OPTS)
+def _power(mx, my, a, b, c, px, py):
+    """Exponent -0.5 d^T conic d with d = mean - pixel centre (reference's operation order)."""
+    dx = mx - px
+    dy = my - py
+    return -_HALF * (a * dx * dx + c * dy * dy) - b * dx * dy
+
 
 @njit(cache=True, nogil=True)
-def bin_gaussians(ranges, order, tiles_x, n_tiles):
+def depth_order(depths):
+    """Stable front-to-back order of float32 depths (ties by index), as
+    ``torch.argsort(depths, stable=True)``: an LSD radix sort on order-preserving uint32
+    keys, O(N) where a comparison sort costs ~1 ms at 20k Gaussians."""
+    n = depths.shape[0]
+    bits = depths.view(np.uint32)
+    keys = np.empty(n, np.uint32)
+    for i in range(n):
+        k = bits[i]
+        if k == np.uint32(0x80000000):  # -0.0 sorts as +0.0 (they compare equal)
+            k = np.uint32(0)
+        # negative floats: flip all bits; non-negative: flip the sign bit
+        keys[i] = ~k if (k >> np.uint32(31)) else (k | np.uint32(0x80000000))
+    order = np.arange(n).astype(np.int64)
+    tmp = np.empty(n, np.int64)
+    counts = np.empty(257, np.int64)
+    for shift in range(0, 32, 8):
+        counts[:] = 0
+        sh = np.uint32(shift)
+        for i in range(n):
+            counts[((keys[order[i]] >> sh) & np.uint32(255)) + 1] += 1
+        for b in range(256):
+            counts[b + 1] += counts[b]
+        for i in range(n):
+            d = (keys[order[i]] >> sh) & np.uint32(255)
+            tmp[counts[d]] = order[i]
+            counts[d] += 1
+        order, tmp = tmp, order
+    return order
+
+
+@njit(cache=True, nogil=True)
+def bin_gaussians(means2d, radii, order, tiles_x, tiles_y):
     """Counting sort of (tile, Gaussian) intersections in depth order.
 
-    ranges [N, 4] int32 (tx0, tx1, ty0, ty1), order [N] int64 front to back.
+    The 3-sigma square [m - r, m + r] touches tiles [floor((m - r)/16), ceil((m + r)/16))
+    (clamped to the grid), computed in float32 exactly as projection.tile_ranges does.
     Returns offsets [n_tiles + 1] int64 and ids [n_isect] int32.
     """
+    n = means2d.shape[0]
+    n_tiles = tiles_x * tiles_y
+    ranges = np.zeros((n, 4), np.int64)
+    ts = _F32(TILE)
+    for g in range(n):
+        if radii[g] <= 0:
+            continue
+        r = _F32(radii[g]) / ts
+        mx = means2d[g, 0] / ts
+        my = means2d[g, 1] / ts
+        ranges[g, 0] = min(max(math.floor(mx - r), 0), tiles_x)
+        ranges[g, 1] = min(max(math.ceil(mx + r), 0), tiles_x)
+        ranges[g, 2] = min(max(math.floor(my - r), 0), tiles_y)
+        ranges[g, 3] = min(max(math.ceil(my + r), 0), tiles_y)
     counts = np.zeros(n_tiles + 1, np.int64)
-    for k in range(order.shape[0]):
+    for k in range(n):
         g = order[k]
         for ty in range(ranges[g, 2], ranges[g, 3]):
             for tx in range(ranges[g, 0], ranges[g, 1]):
@@ -58,7 +147,7 @@ def bin_gaussians(ranges, order, tiles_x, n_tiles):
         counts[t + 1] += counts[t]
     fill = counts[:-1].copy()
     ids = np.empty(counts[n_tiles], np.int32)
-    for k in range(order.shape[0]):
+    for k in range(n):
         g = order[k]
         for ty in range(ranges[g, 2], ranges[g, 3]):
             for tx in range(ranges[g, 0], ranges[g, 1]):
@@ -69,29 +158,86 @@ def bin_gaussians(ranges, order, tiles_x, n_tiles):
 
 
 @njit(cache=True, nogil=True)
-def _support_box(mx, my, a, b, c, o, x0, x1, y0, y1):
-    """Inclusive pixel box [c0, c1] x [r0, r1] within the tile [x0, x1) x [y0, y1) whose
-    centres can see alpha >= 1/255 from this Gaussian; empty when c0 > c1 or r0 > r1."""
-    det = float(a) * float(c) - float(b) * float(b)
-    if det <= 0.0 or not (det < 1e300):
-        return x0, x1 - 1, y0, y1 - 1
-    # o >= 1/255 here, so the log is >= 0; margins cover float32 rounding of the exponent.
-    k2 = 2.0 * math.log(255.0 * float(o)) * 1.001 + 1e-3
-    hx = math.sqrt(k2 * float(c) / det) * 1.0001 + 1e-3
-    hy = math.sqrt(k2 * float(a) / det) * 1.0001 + 1e-3
-    fx0 = math.ceil(float(mx) - hx - 0.5)
-    fx1 = math.floor(float(mx) + hx - 0.5)
-    fy0 = math.ceil(float(my) - hy - 0.5)
-    fy1 = math.floor(float(my) + hy - 0.5)
-    c0 = x0 if fx0 < x0 else (x1 if fx0 > x1 else int(fx0))
-    c1 = x1 - 1 if fx1 > x1 - 1 else (x0 - 1 if fx1 < x0 - 1 else int(fx1))
-    r0 = y0 if fy0 < y0 else (y1 if fy0 > y1 else int(fy0))
-    r1 = y1 - 1 if fy1 > y1 - 1 else (y0 - 1 if fy1 < y0 - 1 else int(fy1))
-    return c0, c1, r0, r1
+def _support_span(g, means2d, conics, opacities, out):
+    a = float(conics[g, 0])
+    b = float(conics[g, 1])
+    c = float(conics[g, 2])
+    o = float(opacities[g])
+    my = float(means2d[g, 1])
+    det = a * c - b * b
+    if o < ALPHA_MIN:
+        out[g, 0] = 1.0
+        out[g, 1] = -1.0
+    elif det <= 0.0 or not (det < 1e300):
+        out[g, 0] = -1e30
+        out[g, 1] = 1e30
+    else:
+        k2 = 2.0 * math.log(255.0 * o) * 1.001 + 1e-3
+        hy = math.sqrt(k2 * a / det) * 1.0001 + 1e-3
+        out[g, 0] = my - hy - 0.5
+        out[g, 1] = my + hy - 0.5
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def forward(offsets, ids, means2d, conics, opacities, features, width, height, tiles_x, tile_order):
+def _support_spans_parallel(means2d, conics, opacities, out):
+    for g in prange(means2d.shape[0]):
+        _support_span(g, means2d, conics, opacities, out)
+
+
+@njit(cache=True, nogil=True)
+def _support_spans_serial(means2d, conics, opacities, out):
+    for g in range(means2d.shape[0]):
+        _support_span(g, means2d, conics, opacities, out)
+
+
+# Below this many Gaussians an O(N) pass costs less than waking the thread pool (and on a
+# busy machine a parallel region waits for every thread to be scheduled).
+PARALLEL_MIN_N = 8192
+
+
+def support_spans(means2d, conics, opacities):
+    """[N, 2] float64 (lo, hi): the pixel-centre rows ``lo <= y <= hi`` (row indices after
+    ceil/floor) where a Gaussian can reach alpha >= 1/255, i.e. the vertical extent of the
+    ellipse ``d^T conic d <= 2 ln(255 o)``, enlarged by margins covering float32 rounding
+    of the exponent. Empty (lo > hi) when o < 1/255."""
+    out = np.empty((means2d.shape[0], 2), np.float64)
+    fn = _support_spans_parallel if means2d.shape[0] >= PARALLEL_MIN_N else _support_spans_serial
+    fn(means2d, conics, opacities, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _support_rows(spans, g, y0, h):
+    """Tile-local rows [r0, r1) of Gaussian g's support span; empty when r0 >= r1."""
+    lo = math.ceil(spans[g, 0]) - y0
+    hi = math.floor(spans[g, 1]) - y0 + 1
+    r0 = 0 if lo < 0 else (h if lo > h else int(lo))
+    r1 = 0 if hi < 0 else (h if hi > h else int(hi))
+    return r0, r1
+
+
+@njit(cache=True, nogil=True)
+def _tile_setup(t, tiles_x, width, height):
+    ty = t // tiles_x
+    tx = t - ty * tiles_x
+    x0 = tx * TILE
+    y0 = ty * TILE
+    return x0, y0, min(TILE, width - x0), min(TILE, height - y0)
+
+
+@njit(cache=True, nogil=True)
+def _pixel_centres(x0, y0):
+    pxc = np.empty(TILE_PIX, np.float32)
+    pyc = np.empty(TILE_PIX, np.float32)
+    for p in range(TILE_PIX):
+        pxc[p] = _F32(x0 + (p & 15)) + _HALF
+        pyc[p] = _F32(y0 + (p >> 4)) + _HALF
+    return pxc, pyc
+
+
+@njit(parallel=True, **_OPTS)
+def forward(offsets, ids, means2d, conics, opacities, features, spans, width, height, tiles_x,
+            tile_order):
     """Front-to-back compositing.
 
     Returns feat [H, W, F] (sum_i f_i alpha_i T_i), T_final [H, W] and last [H, W] int32
@@ -104,19 +250,17 @@ def forward(offsets, ids, means2d, conics, opacities, features, width, height, t
     n_tiles = offsets.shape[0] - 1
     for k in prange(n_tiles):
         t = tile_order[k]
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        x0 = tx * TILE
-        y0 = ty * TILE
-        x1 = min(x0 + TILE, width)
-        y1 = min(y0 + TILE, height)
-        n_pix = (x1 - x0) * (y1 - y0)
-        T = np.ones(TILE_PIX, np.float32)
-        acc = np.zeros((TILE_PIX, F), np.float32)
+        x0, y0, w, h = _tile_setup(t, tiles_x, width, height)
+        pxc, pyc = _pixel_centres(x0, y0)
+        # T > 0: open pixel; T <= 0: closed (outside the image, or stopped, holding -T_final).
+        T = np.empty(TILE_PIX, np.float32)
+        for p in range(TILE_PIX):
+            T[p] = _ONE if ((p & 15) < w and (p >> 4) < h) else -_ONE
         last = np.full(TILE_PIX, -1, np.int32)
-        done = np.zeros(TILE_PIX, np.bool_)
-        n_done = 0
-        for j in range(offsets[t], offsets[t + 1]):
+        acc = np.zeros(F * TILE_PIX, np.float32)
+        wbuf = np.empty(TILE_PIX, np.float32)
+        start = offsets[t]
+        for j in range(start, offsets[t + 1]):
             g = ids[j]
             o = opacities[g]
             if o < ALPHA_MIN:
@@ -126,49 +270,64 @@ def forward(offsets, ids, means2d, conics, opacities, features, width, height, t
             a = conics[g, 0]
             b = conics[g, 1]
             c = conics[g, 2]
-            c0, c1, r0, r1 = _support_box(mx, my, a, b, c, o, x0, x1, y0, y1)
-            for py in range(r0, r1 + 1):
-                dy = my - (_F32(py) + _HALF)
-                row = (py - y0) * TILE - x0
-                for px in range(c0, c1 + 1):
-                    p = row + px
-                    if done[p]:
-                        continue
-                    dx = mx - (_F32(px) + _HALF)
-                    power = -_HALF * (a * dx * dx + c * dy * dy) - b * dx * dy
-                    if power > _ZERO:
-                        continue
-                    alpha = min(ALPHA_MAX, o * math.exp(power))
-                    if alpha < ALPHA_MIN:
-                        continue
-                    Tp = T[p]
-                    next_T = Tp * (_ONE - alpha)
-                    if next_T < T_MIN:
-                        done[p] = True
-                        n_done += 1
-                        continue
-                    w = alpha * Tp
-                    for f in range(F):
-                        acc[p, f] += w * features[g, f]
-                    T[p] = next_T
-                    last[p] = j
-            if n_done == n_pix:
-                break
-        for py in range(y0, y1):
-            for px in range(x0, x1):
-                p = (py - y0) * TILE + (px - x0)
-                out_T[py, px] = T[p]
-                out_last[py, px] = last[p]
+            r0, r1 = _support_rows(spans, g, y0, h)
+            if r0 >= r1:
+                continue
+            lo = np.uint64(r0 * TILE)
+            hi = np.uint64(r1 * TILE)
+            jj = np.int32(j)
+            for q in range(lo, hi):
+                power = _power(mx, my, a, b, c, pxc[q], pyc[q])
+                alpha = min(ALPHA_MAX, o * _exp_neg(power))
+                Tp = T[q]
+                next_T = Tp * (_ONE - alpha)
+                ok = (power <= _ZERO) & (alpha >= ALPHA_MIN)
+                contrib = ok & (next_T >= T_MIN)
+                stop = ok & (next_T < T_MIN)  # also true for closed pixels (next_T <= 0)
+                wbuf[q] = alpha * Tp if contrib else _ZERO
+                T[q] = next_T if contrib else (-abs(Tp) if stop else Tp)
+                last[q] = jj if contrib else last[q]
+            for f in range(0, F, 4):  # channels in blocks of 4 (F is padded to a multiple of 4)
+                f0 = features[g, f]
+                f1 = features[g, f + 1]
+                f2 = features[g, f + 2]
+                f3 = features[g, f + 3]
+                o0 = np.uint64(f * TILE_PIX)
+                o1 = o0 + np.uint64(TILE_PIX)
+                o2 = o1 + np.uint64(TILE_PIX)
+                o3 = o2 + np.uint64(TILE_PIX)
+                for q in range(lo, hi):
+                    wq = wbuf[q]
+                    acc[o0 + q] += wq * f0
+                    acc[o1 + q] += wq * f1
+                    acc[o2 + q] += wq * f2
+                    acc[o3 + q] += wq * f3
+            if ((j - start) & 15) == 15:
+                n_open = 0
+                for q in range(np.uint64(0), np.uint64(TILE_PIX)):
+                    n_open += T[q] > _ZERO
+                if n_open == 0:
+                    break
+        for py in range(h):
+            for px in range(w):
+                p = py * TILE + px
+                out_T[y0 + py, x0 + px] = abs(T[p])
+                out_last[y0 + py, x0 + px] = last[p]
                 for f in range(F):
-                    out_feat[py, px, f] = acc[p, f]
+                    out_feat[y0 + py, x0 + px, f] = acc[f * TILE_PIX + p]
     return out_feat, out_T, out_last
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def backward(offsets, ids, means2d, conics, opacities, features, width, height, tiles_x,
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
+def backward(offsets, ids, means2d, conics, opacities, features, spans, width, height, tiles_x,
              tile_order, T_final, last_ids, grad_feat, grad_alpha):
     """Back-to-front replay. Returns per-intersection gradient slots:
-    means2d [M, 2], conics [M, 3], opacities [M], features [M, F]."""
+    means2d [M, 2], conics [M, 3], opacities [M], features [M, F].
+
+    ``reassoc`` lets LLVM vectorise the per-Gaussian sums over a span (a fixed association,
+    so still deterministic); alpha itself is computed by ``_power``/``_exp_neg``, compiled
+    without it, so the backward sees exactly the forward's alphas.
+    """
     F = features.shape[1]
     M = ids.shape[0]
     g_mean = np.zeros((M, 2), np.float32)
@@ -178,29 +337,28 @@ def backward(offsets, ids, means2d, conics, opacities, features, width, height, 
     n_tiles = offsets.shape[0] - 1
     for k in prange(n_tiles):
         t = tile_order[k]
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        x0 = tx * TILE
-        y0 = ty * TILE
-        x1 = min(x0 + TILE, width)
-        y1 = min(y0 + TILE, height)
+        x0, y0, w, h = _tile_setup(t, tiles_x, width, height)
+        pxc, pyc = _pixel_centres(x0, y0)
         T = np.ones(TILE_PIX, np.float32)
-        R = np.zeros(TILE_PIX, np.float32)  # -dL/dT_final * T_final + sum_{later} (g.f) w
+        R = np.zeros(TILE_PIX, np.float32)  # -dL/dT_final T_final + sum_{later i} (g.f_i) w_i
         last = np.full(TILE_PIX, -1, np.int32)
-        gpix = np.zeros((TILE_PIX, F), np.float32)
-        acc_f = np.zeros(F, np.float32)
+        gpix = np.zeros(F * TILE_PIX, np.float32)
+        row_last = np.full(TILE, -1, np.int64)
         j_max = -1
-        for py in range(y0, y1):
-            for px in range(x0, x1):
-                p = (py - y0) * TILE + (px - x0)
-                Tf = T_final[py, px]
+        for py in range(h):
+            for px in range(w):
+                p = py * TILE + px
+                Tf = T_final[y0 + py, x0 + px]
                 T[p] = Tf
-                R[p] = -grad_alpha[py, px] * Tf
-                last[p] = last_ids[py, px]
-                if last[p] > j_max:
-                    j_max = last[p]
+                R[p] = -grad_alpha[y0 + py, x0 + px] * Tf
+                lp = last_ids[y0 + py, x0 + px]
+                last[p] = lp
+                row_last[py] = max(row_last[py], lp)
                 for f in range(F):
-                    gpix[p, f] = grad_feat[py, px, f]
+                    gpix[f * TILE_PIX + p] = grad_feat[y0 + py, x0 + px, f]
+            j_max = max(j_max, row_last[py])
+        gf = np.empty(TILE_PIX, np.float32)
+        wv = np.zeros(TILE_PIX, np.float32)
         for j in range(j_max, offsets[t] - 1, -1):
             g = ids[j]
             o = opacities[g]
@@ -211,61 +369,85 @@ def backward(offsets, ids, means2d, conics, opacities, features, width, height, 
             a = conics[g, 0]
             b = conics[g, 1]
             c = conics[g, 2]
-            c0, c1, r0, r1 = _support_box(mx, my, a, b, c, o, x0, x1, y0, y1)
+            r0, r1 = _support_rows(spans, g, y0, h)
+            open_rows = False
+            for r in range(r0, r1):
+                if row_last[r] >= j:
+                    open_rows = True
+            if not open_rows:
+                continue  # every pixel it could touch had stopped before it
+            lo = np.uint64(r0 * TILE)
+            hi = np.uint64(r1 * TILE)
+            for q in range(lo, hi):
+                gf[q] = _ZERO
+            for f in range(0, F, 4):
+                f0 = features[g, f]
+                f1 = features[g, f + 1]
+                f2 = features[g, f + 2]
+                f3 = features[g, f + 3]
+                o0 = np.uint64(f * TILE_PIX)
+                o1 = o0 + np.uint64(TILE_PIX)
+                o2 = o1 + np.uint64(TILE_PIX)
+                o3 = o2 + np.uint64(TILE_PIX)
+                for q in range(lo, hi):
+                    gf[q] += gpix[o0 + q] * f0 + gpix[o1 + q] * f1 + gpix[o2 + q] * f2 + gpix[o3 + q] * f3
+            jj = np.int32(j)
             s_mx = _ZERO
             s_my = _ZERO
             s_a = _ZERO
             s_b = _ZERO
             s_c = _ZERO
             s_o = _ZERO
-            for f in range(F):
-                acc_f[f] = _ZERO
-            touched = False
-            for py in range(r0, r1 + 1):
-                dy = my - (_F32(py) + _HALF)
-                row = (py - y0) * TILE - x0
-                for px in range(c0, c1 + 1):
-                    p = row + px
-                    if j > last[p]:
-                        continue
-                    dx = mx - (_F32(px) + _HALF)
-                    power = -_HALF * (a * dx * dx + c * dy * dy) - b * dx * dy
-                    if power > _ZERO:
-                        continue
-                    G = math.exp(power)
-                    raw = o * G
-                    alpha = min(ALPHA_MAX, raw)
-                    if alpha < ALPHA_MIN:
-                        continue
-                    touched = True
-                    one_m = _ONE - alpha
-                    Ti = T[p] / one_m
-                    w = alpha * Ti
-                    gf = _ZERO
-                    for f in range(F):
-                        gp = gpix[p, f]
-                        gf += gp * features[g, f]
-                        acc_f[f] += w * gp
-                    d_alpha = Ti * gf - R[p] / one_m
-                    R[p] += gf * w
-                    T[p] = Ti
-                    if raw <= ALPHA_MAX:
-                        d_pow = d_alpha * alpha
-                        s_o += d_alpha * G
-                        s_a += d_pow * (-_HALF * dx * dx)
-                        s_c += d_pow * (-_HALF * dy * dy)
-                        s_b += d_pow * (-dx * dy)
-                        s_mx += d_pow * (-(a * dx + b * dy))
-                        s_my += d_pow * (-(c * dy + b * dx))
-            if touched:
-                g_mean[j, 0] = s_mx
-                g_mean[j, 1] = s_my
-                g_conic[j, 0] = s_a
-                g_conic[j, 1] = s_b
-                g_conic[j, 2] = s_c
-                g_opac[j] = s_o
-                for f in range(F):
-                    g_feat[j, f] = acc_f[f]
+            for q in range(lo, hi):
+                dx = mx - pxc[q]
+                dy = my - pyc[q]
+                power = _power(mx, my, a, b, c, pxc[q], pyc[q])
+                G = _exp_neg(power)
+                raw = o * G
+                alpha = min(ALPHA_MAX, raw)
+                m = (jj <= last[q]) & (power <= _ZERO) & (alpha >= ALPHA_MIN)
+                inv = _ONE / (_ONE - alpha)
+                Rq = R[q]
+                gfq = gf[q]
+                Ti = T[q] * inv
+                wgt = alpha * Ti
+                d_alpha = Ti * gfq - Rq * inv
+                R[q] = Rq + gfq * wgt if m else Rq
+                T[q] = Ti if m else T[q]
+                wv[q] = wgt if m else _ZERO
+                live = m & (raw <= ALPHA_MAX)  # the 0.99 clamp has zero slope
+                d_pow = d_alpha * alpha if live else _ZERO
+                s_o += d_alpha * G if live else _ZERO
+                s_a += d_pow * (-_HALF * dx * dx)
+                s_c += d_pow * (-_HALF * dy * dy)
+                s_b += d_pow * (-dx * dy)
+                s_mx += d_pow * (-(a * dx + b * dy))
+                s_my += d_pow * (-(c * dy + b * dx))
+            g_mean[j, 0] = s_mx
+            g_mean[j, 1] = s_my
+            g_conic[j, 0] = s_a
+            g_conic[j, 1] = s_b
+            g_conic[j, 2] = s_c
+            g_opac[j] = s_o
+            for f in range(0, F, 4):
+                o0 = np.uint64(f * TILE_PIX)
+                o1 = o0 + np.uint64(TILE_PIX)
+                o2 = o1 + np.uint64(TILE_PIX)
+                o3 = o2 + np.uint64(TILE_PIX)
+                s0 = _ZERO
+                s1 = _ZERO
+                s2 = _ZERO
+                s3 = _ZERO
+                for q in range(lo, hi):
+                    wq = wv[q]
+                    s0 += gpix[o0 + q] * wq
+                    s1 += gpix[o1 + q] * wq
+                    s2 += gpix[o2 + q] * wq
+                    s3 += gpix[o3 + q] * wq
+                g_feat[j, f] = s0
+                g_feat[j, f + 1] = s1
+                g_feat[j, f + 2] = s2
+                g_feat[j, f + 3] = s3
     return g_mean, g_conic, g_opac, g_feat
 
 

@@ -8,7 +8,7 @@ import torch
 from torch import Tensor
 
 from cogs.render import cpu_backend, gsplat_backend, torch_backend
-from cogs.render.projection import depth_order, project_gaussians, tile_ranges
+from cogs.render.projection import project_gaussians, tile_ranges
 from cogs.render.sh import MAX_SH_DEGREE, num_sh_bases, sh_to_color
 
 BACKENDS = ("auto", "torch", "cpu", "gsplat")
@@ -68,17 +68,16 @@ def rasterize(
             near=near, far=far, background=background, sh_degree=sh_degree,
         )
 
-    proj = project_gaussians(means, quats, scales, viewmat, K, width, height, near, far)
+    project = project_gaussians if backend == "torch" else cpu_backend.project
+    proj = project(means, quats, scales, viewmat, K, width, height, near, far)
     if sh_degree is not None:
         R, t = viewmat[:3, :3], viewmat[:3, 3]
         campos = -(R.T @ t)
         colors = sh_to_color(sh_degree, means - campos, colors)
     features = torch.cat([colors, proj.depths[:, None]], dim=-1)  # depth rides as a channel
-    ranges = tile_ranges(proj.means2d, proj.radii, width, height)
-    order = depth_order(proj.depths)
     pixel_pass = torch_backend.rasterize_pixels if backend == "torch" else cpu_backend.rasterize_pixels
-    feat, alpha = pixel_pass(proj.means2d, proj.conics, opacities, features, ranges, order,
-                             width, height)
+    feat, alpha = pixel_pass(proj.means2d, proj.conics, opacities, features, proj.radii,
+                             proj.depths, width, height)
 
     out_colors = feat[..., :D]
     if background is not None:

@@ -1,9 +1,13 @@
-"""CPU backend: numba pixel pass (see :mod:`cogs.render._kernels`) behind an autograd.Function.
+"""CPU backend: numba kernels behind autograd.Functions.
 
-Projection, SH and culling stay in differentiable torch (shared with the reference, O(N));
-only binning, compositing and its backward run in numba. The kernels work in float32 on
-host memory; inputs of another dtype or device are converted and the gradients converted
-back, so the backend also serves float64 or CUDA tensors (slowly, through the host).
+* projection: :mod:`cogs.render.cpu_projection` (fused EWA projection with a hand-written
+  backward; the torch version when a camera tensor needs gradients);
+* pixel pass: :mod:`cogs.render._kernels` (binning, forward compositing, backward).
+
+SH evaluation and the final colour/depth arithmetic stay in torch (O(N) or O(pixels)).
+The kernels work in float32 on host memory; inputs of another dtype or device are converted
+and the gradients converted back, so the backend also serves float64 or CUDA tensors
+(slowly, through the host).
 """
 
 from __future__ import annotations
@@ -15,11 +19,21 @@ import torch
 from torch import Tensor
 
 from cogs.render import _kernels
-from cogs.render.projection import tile_grid
+from cogs.render.cpu_projection import project_gaussians_fused
+from cogs.render.projection import Projected, project_gaussians, tile_grid
 
 
 def _np32(t: Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to(device="cpu", dtype=torch.float32).numpy())
+
+
+def _pad4(a: np.ndarray) -> np.ndarray:
+    """Zero-pad the last (channel) axis to a multiple of 4: the kernels handle channels in
+    blocks of four, one vectorised loop per block."""
+    pad = (-a.shape[-1]) % 4
+    if pad == 0:
+        return a
+    return np.ascontiguousarray(np.concatenate([a, np.zeros(a.shape[:-1] + (pad,), a.dtype)], axis=-1))
 
 
 def _tile_order(tiles_x: int, tiles_y: int) -> np.ndarray:
@@ -29,44 +43,50 @@ def _tile_order(tiles_x: int, tiles_y: int) -> np.ndarray:
     return np.concatenate([np.arange(s, n, 2, dtype=np.int64) for s in (0, 1)])
 
 
-def bin_tiles(ranges: Tensor, order: Tensor, width: int, height: int):
-    """(offsets [T+1] int64, ids [M] int32) of the depth-sorted tile lists."""
+def project(means, quats, scales, viewmat, K, width, height, near, far) -> Projected:
+    """EWA projection for the CPU backend: fused numba unless camera gradients are needed."""
+    if viewmat.requires_grad or K.requires_grad:
+        return project_gaussians(means, quats, scales, viewmat, K, width, height, near, far)
+    return project_gaussians_fused(means, quats, scales, viewmat, K, width, height, near, far)
+
+
+def bin_tiles(means2d: np.ndarray, radii: np.ndarray, depths: np.ndarray, width: int, height: int):
+    """(offsets [T+1] int64, ids [M] int32): per-tile lists of Gaussian ids, front to back."""
     tiles_x, tiles_y = tile_grid(width, height)
-    r = np.ascontiguousarray(ranges.detach().cpu().numpy().astype(np.int32, copy=False))
-    o = np.ascontiguousarray(order.detach().cpu().numpy().astype(np.int64, copy=False))
-    return _kernels.bin_gaussians(r, o, tiles_x, tiles_x * tiles_y)
+    order = _kernels.depth_order(depths)
+    return _kernels.bin_gaussians(means2d, radii, order, tiles_x, tiles_y)
 
 
 class _PixelPass(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, ranges, order, width, height):
+    def forward(ctx, means2d, conics, opacities, features, radii, depths, width, height):
         tiles_x, tiles_y = tile_grid(width, height)
-        offsets, ids = bin_tiles(ranges, order, width, height)
+        m2, co, op = _np32(means2d), _np32(conics), _np32(opacities)
+        r = np.ascontiguousarray(radii.detach().cpu().numpy().astype(np.int32, copy=False))
+        offsets, ids = bin_tiles(m2, r, _np32(depths), width, height)
         tile_order = _tile_order(tiles_x, tiles_y)
-        m2, co, op, fe = _np32(means2d), _np32(conics), _np32(opacities), _np32(features)
-        feat, T_final, last = _kernels.forward(
-            offsets, ids, m2, co, op, fe, width, height, tiles_x, tile_order
-        )
-        ctx.kernel_state = (offsets, ids, m2, co, op, fe, tile_order, T_final, last)
-        ctx.geometry = (width, height, tiles_x)
+        fe = _pad4(_np32(features))
+        spans = _kernels.support_spans(m2, co, op)
+        geometry = (offsets, ids, m2, co, op, fe, spans, width, height, tiles_x, tile_order)
+        feat, T_final, last = _kernels.forward(*geometry)
+        ctx.kernel_state = (geometry, T_final, last)
         ctx.like = (means2d, conics, opacities, features)
-        alpha = (1.0 - T_final)[..., None]
-        out_feat = torch.from_numpy(feat).to(device=features.device, dtype=features.dtype)
-        out_alpha = torch.from_numpy(alpha).to(device=features.device, dtype=features.dtype)
+        to = dict(device=features.device, dtype=features.dtype)
+        out_feat = torch.from_numpy(feat[..., :features.shape[1]]).to(**to)
+        out_alpha = torch.from_numpy((1.0 - T_final)[..., None]).to(**to)
         return out_feat, out_alpha
 
     @staticmethod
     def backward(ctx, grad_feat, grad_alpha):
-        offsets, ids, m2, co, op, fe, tile_order, T_final, last = ctx.kernel_state
-        width, height, tiles_x = ctx.geometry
-        n = m2.shape[0]
-        slots = _kernels.backward(
-            offsets, ids, m2, co, op, fe, width, height, tiles_x, tile_order, T_final, last,
-            _np32(grad_feat), _np32(grad_alpha[..., 0]),
-        )
+        geometry, T_final, last = ctx.kernel_state
+        ids, n = geometry[1], geometry[2].shape[0]
+        slots = _kernels.backward(*geometry, T_final, last, _pad4(_np32(grad_feat)),
+                                  _np32(grad_alpha[..., 0]))
         grads = _kernels.reduce_slots(ids, n, *slots)
         out = []
         for g, like in zip(grads, ctx.like):
+            if g.ndim == 2:
+                g = np.ascontiguousarray(g[:, :like.shape[1]])
             out.append(torch.from_numpy(g).to(device=like.device, dtype=like.dtype))
         return (*out, None, None, None, None)
 
@@ -76,13 +96,13 @@ def rasterize_pixels(
     conics: Tensor,  # [N, 3]
     opacities: Tensor,  # [N]
     features: Tensor,  # [N, F]
-    ranges: Tensor,  # [N, 4] int32
-    order: Tensor,  # [N] front to back
+    radii: Tensor,  # [N] int, 0 = culled
+    depths: Tensor,  # [N] sort key, front to back
     width: int,
     height: int,
 ) -> tuple[Tensor, Tensor]:
     """Same contract as :func:`cogs.render.torch_backend.rasterize_pixels`."""
-    return _PixelPass.apply(means2d, conics, opacities, features, ranges, order, width, height)
+    return _PixelPass.apply(means2d, conics, opacities, features, radii, depths, width, height)
 
 
 def warmup() -> float:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from cogs.render.projection import TILE_SIZE, tile_grid
+from cogs.render.projection import TILE_SIZE, depth_order, tile_grid, tile_ranges
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -81,12 +81,14 @@ def rasterize_pixels(
     conics: Tensor,  # [N, 3]
     opacities: Tensor,  # [N]
     features: Tensor,  # [N, F]
-    ranges: Tensor,  # [N, 4] int tile ranges
-    order: Tensor,  # [N] front-to-back permutation
+    radii: Tensor,  # [N] int, 0 = culled
+    depths: Tensor,  # [N] sort key, front to back
     width: int,
     height: int,
 ) -> tuple[Tensor, Tensor]:
     """Composite features -> ([H, W, F] sum_i f_i w_i, [H, W, 1] alpha)."""
+    ranges = tile_ranges(means2d, radii, width, height)
+    order = depth_order(depths)
     F = features.shape[1]
     tiles_x, tiles_y = tile_grid(width, height)
     device, dtype = means2d.device, means2d.dtype

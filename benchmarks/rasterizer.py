@@ -1,0 +1,234 @@
+"""Rasterizer benchmark: torch reference vs numba CPU backend.
+
+Usage:  python benchmarks/rasterizer.py [--quick] [--repeats R]
+
+Progress goes to stderr; the last stdout line is one JSON object.
+
+Scene (cogs.render.scenes.splat_scene): camera at the origin, fx = 0.9 W; N Gaussians
+uniform in depth z in [2, 6] and across 95 % of the frustum at that depth, so all are in
+view; per-axis scales log-uniform so the on-screen standard deviation is 0.5-3 px (3-sigma
+radii ~2-10 px, mean ~6 px), random rotations, opacities uniform in [0.05, 0.95]: the small
+dense splats of a trained 3DGS scene. RGB colours (D = 3; depth rides as a 4th channel).
+
+Work unit: Gaussian-pixel pairs as the torch reference evaluates them, i.e.
+sum over 16x16 tiles of (Gaussians whose 3-sigma square touches the tile) x (pixels in the
+tile). The numba kernels evaluate far fewer pairs (support boxes, early termination); the
+pairs/s figures count the reference's pairs so both backends are measured in one unit.
+
+Timings are medians; "fwd" is the forward call with grad-enabled inputs (as in training),
+"fwd_bwd" is forward + backward of a random linear loss on colour, alpha and depth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import torch
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def median_ms(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+def matmul_gflops(n: int = 2048, repeats: int = 5) -> float:
+    a = torch.randn(n, n)
+    b = torch.randn(n, n)
+    a @ b
+    ms = median_ms(lambda: a @ b, repeats)
+    return 2.0 * n**3 / (ms * 1e-3) / 1e9
+
+
+def compile_times() -> dict:
+    """First-call JIT compile (empty numba cache) and on-disk cache load, each measured as
+    the duration of cogs.render.warmup() in a fresh interpreter (imports excluded)."""
+    code = ("import time, torch; import cogs.render as r; t = time.perf_counter(); r.warmup(); "
+            "print(time.perf_counter() - t)")
+    out = {}
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for key in ("numba_first_call_compile_s", "numba_cached_load_s"):
+            res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                                 text=True, check=True)
+            out[key] = round(float(res.stdout.strip().splitlines()[-1]), 3)
+    return out
+
+
+class Case:
+    def __init__(self, n: int, width: int, height: int):
+        from cogs.render.scenes import splat_scene
+
+        self.scene = splat_scene(n, width, height, seed=0)
+        g = torch.Generator().manual_seed(1)
+        self.w = [torch.randn(height, width, c, generator=g) for c in (3, 1, 1)]
+
+    def run(self, backend: str, backward: bool) -> None:
+        from cogs.render import rasterize
+
+        params = [t.clone().requires_grad_(True) for t in self.scene.gaussians()]
+        out = rasterize(*params, *self.scene.camera(), backend=backend)
+        if backward:
+            loss = ((out.colors * self.w[0]).sum() + (out.alpha * self.w[1]).sum()
+                    + (out.depth * self.w[2]).sum())
+            loss.backward()
+
+
+def cpu_profile(case: Case, repeats: int) -> dict:
+    """Median ms of each stage of the cpu backend's forward+backward, run one by one."""
+    import numpy as np
+
+    from cogs.render import _kernels, cpu_backend
+    from cogs.render.projection import tile_grid
+
+    s = case.scene
+    W, H = s.width, s.height
+    tx, ty = tile_grid(W, H)
+    st = {}
+
+    def project():
+        params = [t.clone().requires_grad_(True) for t in s.gaussians()]
+        proj = cpu_backend.project(params[0], params[1], params[2], s.viewmat, s.K, W, H,
+                                   0.01, 1e10)
+        return params, proj
+
+    st["projection_fwd"] = median_ms(project, repeats)
+    params, proj = project()
+    np32 = cpu_backend._np32
+    m2, co, op = np32(proj.means2d), np32(proj.conics), np32(params[3])
+    depths = np32(proj.depths)
+    radii = proj.radii.numpy()
+    fe = cpu_backend._pad4(np32(torch.cat([params[4], proj.depths[:, None]], dim=-1)))
+    st["depth_sort"] = median_ms(lambda: _kernels.depth_order(depths), repeats)
+    order = _kernels.depth_order(depths)
+    st["binning"] = median_ms(lambda: _kernels.bin_gaussians(m2, radii, order, tx, ty), repeats)
+    offsets, ids = _kernels.bin_gaussians(m2, radii, order, tx, ty)
+    st["support_spans"] = median_ms(lambda: _kernels.support_spans(m2, co, op), repeats)
+    spans = _kernels.support_spans(m2, co, op)
+    to = cpu_backend._tile_order(tx, ty)
+    args = (offsets, ids, m2, co, op, fe, spans, W, H, tx, to)
+    st["pixels_fwd"] = median_ms(lambda: _kernels.forward(*args), repeats)
+    _, T, last = _kernels.forward(*args)
+    g = np.random.default_rng(0)
+    gF = g.standard_normal((H, W, fe.shape[1])).astype(np.float32)
+    gA = g.standard_normal((H, W)).astype(np.float32)
+    st["pixels_bwd"] = median_ms(lambda: _kernels.backward(*args, T, last, gF, gA), repeats)
+    slots = _kernels.backward(*args, T, last, gF, gA)
+    st["slot_reduce"] = median_ms(lambda: _kernels.reduce_slots(ids, m2.shape[0], *slots), repeats)
+
+    def proj_bwd():
+        p, pr = project()
+        loss = pr.means2d.sum() + pr.conics.sum() + pr.depths.sum()
+        t0 = time.perf_counter()
+        loss.backward()
+        return time.perf_counter() - t0
+
+    st["projection_bwd"] = 1e3 * statistics.median(proj_bwd() for _ in range(repeats))
+    st = {k: round(v, 2) for k, v in st.items()}
+    st["n_intersections"] = int(ids.shape[0])
+    return st
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="smoke run: small sizes, 2 repeats")
+    ap.add_argument("--repeats", type=int, default=None, help="cpu repeats (default 15, quick 2)")
+    ap.add_argument("--torch-budget-s", type=float, default=60.0,
+                    help="skip a torch case whose predicted fwd+bwd exceeds this")
+    args = ap.parse_args()
+
+    import numba
+
+    from cogs.render import count_pairs, warmup
+
+    sizes = [(128, 128), (256, 192)]
+    counts = [5_000, 20_000, 50_000]
+    if args.quick:
+        sizes, counts = [(64, 48)], [500, 2_000]
+    reps = args.repeats or (2 if args.quick else 15)
+    torch_reps = 1 if args.quick else 3
+
+    result = {
+        "benchmark": "rasterizer",
+        "load_avg_start": [round(x, 2) for x in os.getloadavg()],
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "numba_threads": numba.get_num_threads(),
+        "numba_threading_layer": None,
+        "torch_version": torch.__version__,
+        "numba_version": numba.__version__,
+        "scene": "cogs.render.scenes.splat_scene: all in frustum, z in [2,6], on-screen sigma "
+                 "0.5-3 px (3-sigma radius ~2-10 px), opacity U[0.05,0.95], D=3",
+        "pair_definition": "sum over 16x16 tiles of n_gaussians_in_tile * pixels_in_tile "
+                           "(the torch reference's dense evaluation)",
+        "repeats": {"cpu": reps, "torch": torch_reps},
+    }
+    log("compile times (fresh interpreters) ...")
+    result.update(compile_times())
+    result["warmup_in_process_s"] = round(warmup(), 3)
+    try:
+        result["numba_threading_layer"] = numba.threading_layer()
+    except ValueError:
+        pass
+    log("matmul ...")
+    result["matmul_2048_f32_gflops"] = round(matmul_gflops(repeats=3 if args.quick else 7), 1)
+
+    cases = []
+    for width, height in sizes:
+        torch_s_per_pair = None
+        for n in counts:
+            case = Case(n, width, height)
+            s = case.scene
+            pairs = count_pairs(s.means, s.quats, s.scales, s.viewmat, s.K, width, height)
+            row = {"width": width, "height": height, "n_gaussians": n, "pairs": pairs}
+            log(f"{width}x{height} N={n}: pairs={pairs:,}")
+            for name in ("cpu", "torch"):
+                if name == "torch" and torch_s_per_pair is not None:
+                    predicted = torch_s_per_pair * pairs
+                    if predicted > args.torch_budget_s:
+                        row["torch"] = {"skipped": f"predicted fwd+bwd {predicted:.0f} s from the "
+                                                   f"previous size exceeds --torch-budget-s"}
+                        log(f"  torch skipped (predicted {predicted:.0f} s)")
+                        continue
+                r = reps if name == "cpu" else torch_reps
+                case.run(name, True)  # warm caches / allocator
+                fwd = median_ms(lambda: case.run(name, False), r)
+                fb = median_ms(lambda: case.run(name, True), r)
+                row[name] = {
+                    "fwd_ms": round(fwd, 2),
+                    "fwd_bwd_ms": round(fb, 2),
+                    "fwd_mpairs_per_s": round(pairs / fwd / 1e3, 1),
+                    "fwd_bwd_mpairs_per_s": round(pairs / fb / 1e3, 1),
+                }
+                if name == "torch":
+                    torch_s_per_pair = fb * 1e-3 / pairs
+                log(f"  {name}: fwd {fwd:.1f} ms, fwd+bwd {fb:.1f} ms "
+                    f"({pairs / fb / 1e3:.0f} Mpairs/s)")
+            if "fwd_ms" in row.get("torch", {}):
+                row["speedup_cpu_over_torch"] = {
+                    "fwd": round(row["torch"]["fwd_ms"] / row["cpu"]["fwd_ms"], 1),
+                    "fwd_bwd": round(row["torch"]["fwd_bwd_ms"] / row["cpu"]["fwd_bwd_ms"], 1),
+                }
+            row["cpu_profile_ms"] = cpu_profile(case, reps)
+            cases.append(row)
+    result["cases"] = cases
+    result["load_avg_end"] = [round(x, 2) for x in os.getloadavg()]
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
