@@ -173,3 +173,21 @@ def test_cpu_backend_differentiates_the_camera_when_asked():
     assert grads["cpu"] is not None and grads["cpu"].abs().sum() > 0
     rel = ((grads["cpu"] - grads["torch"]).norm() / grads["torch"].norm()).item()
     assert rel <= 1e-3
+
+
+def test_warmup_compiles_every_kernel_variant_a_render_uses():
+    """After warmup(), no render (any size, channel count, dtype) triggers a numba compile."""
+    from cogs.render import _kernels, cpu_projection
+
+    dispatchers = [getattr(_kernels, n) for n in dir(_kernels) if hasattr(getattr(_kernels, n), "signatures")]
+    dispatchers += [getattr(cpu_projection, n) for n in dir(cpu_projection)
+                    if hasattr(getattr(cpu_projection, n), "signatures")]
+    warmup()
+    before = [len(d.signatures) for d in dispatchers]
+    scenes = [random_scene(100, 33, 17, channels=7), splat_scene(9000, 64, 48, channels=1),
+              random_scene(50, 20, 20, dtype=torch.float64)]
+    for scene in scenes:
+        params = [t.clone().requires_grad_(True) for t in scene.gaussians()]
+        out = rasterize(*params, *scene.camera(), backend="cpu")
+        (out.colors.sum() + out.depth.sum()).backward()
+    assert [len(d.signatures) for d in dispatchers] == before
