@@ -2,16 +2,18 @@
 
 Layout and ordering (shared with the torch reference so results match):
 
-* Gaussians are binned into 16x16 tiles by their 3-sigma square (tile ranges computed in
-  torch by :func:`cogs.render.projection.tile_ranges`) in a global front-to-back order,
-  so each tile's list ``ids[offsets[t]:offsets[t+1]]`` is already depth sorted.
+* Gaussians are binned into 16x16 tiles by their 3-sigma square (the tile-range formula of
+  :func:`cogs.render.projection.tile_ranges`, in float32) in a global front-to-back order
+  (radix sort of depths, stable like ``torch.argsort(stable=True)``), so each tile's list
+  ``ids[offsets[t]:offsets[t+1]]`` is already depth sorted.
 * ``prange`` runs over tiles: a tile owns its pixels and its slice of the intersection
   list, so there are no write races and no atomics.
 * Inside a tile the loop is Gaussian-major and SIMD across pixels. A tile's state lives in
   flat 256-pixel arrays (row-major, 16 wide); each Gaussian visits only the rows of the
   tile where its alpha can reach 1/255 (the ellipse ``d^T conic d <= 2 ln(255 o)``,
   slightly enlarged; outside it the reference computes alpha < 1/255 and skips the pair
-  anyway), as one contiguous span of pixels processed branch-free with masks, which LLVM
+  anyway; evaluating more pixels than needed is never wrong, it is what the dense
+  reference does), as one contiguous span of pixels processed branch-free with masks, which LLVM
   vectorises (16 float32 lanes with AVX-512). Span indices are unsigned so numba emits no
   negative-index wraparound, which would otherwise block vectorisation.
 * exp is a branch-free polynomial (``_exp_neg``, ~1e-7 relative error) because numba has
@@ -20,11 +22,11 @@ Layout and ordering (shared with the torch reference so results match):
   the 1/255 and 1e-4 thresholds in both).
 * The backward replays each tile back to front from the per-pixel final transmittance and
   last contributor (3DGS), masking exactly the pairs the forward composited, skipping
-  Gaussians whose rows hold no pixel that was still open. Per-pixel gradient terms go to
-  span buffers that are summed per Gaussian (``_span_sums``, vectorised reduction with
-  a fixed association), then written to one slot per (tile, Gaussian) intersection; slots
-  are reduced per Gaussian in intersection order. Every sum has a fixed order, so results
-  are bit-reproducible whatever the thread count.
+  Gaussians whose rows hold no pixel that was still open. Each Gaussian's gradient terms
+  are summed over its span (vectorised reductions: the backward alone is compiled with
+  ``reassoc``, a fixed association, so still deterministic) and written to one slot per
+  (tile, Gaussian) intersection; slots are reduced per Gaussian in intersection order.
+  Every sum has a fixed order, so results are bit-reproducible whatever the thread count.
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ class Projected:
     conics: Tensor  # [N, 3] (a, b, c) of the inverse 2D covariance [[a, b], [b, c]], differentiable
     depths: Tensor  # [N] camera-space z, differentiable
     radii: Tensor  # [N] int32, 0 = culled
-    means_cam: Tensor  # [N, 3] camera-space centres, differentiable
+    means_cam: Tensor | None  # [N, 3] camera-space centres (torch projection only)
 
 
 def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
