@@ -397,3 +397,36 @@ def test_cli_reports_a_missing_video_with_exit_code_2(tmp_path, capsys):
     code = main(["preprocess", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "s")])
     assert code == 2
     assert "nope.mp4" in capsys.readouterr().err
+
+
+def test_boundary_refinement_tightens_a_mask_that_bleeds_into_the_background():
+    import cv2
+
+    from cogs.preprocess.persons import refine_mask_boundary
+
+    H, W = 160, 120
+    img = _texture(H, W, seed=3) // 3 + 150  # light background
+    person = np.zeros((H, W), bool)
+    person[20:150, 40:80] = True
+    img[person] = (40, 50, 120)
+    # A low-resolution soft mask, upsampled: it bleeds ~4 px past the true edge.
+    soft = cv2.resize(cv2.resize(person.astype(np.float32), (15, 20), interpolation=cv2.INTER_AREA), (W, H))
+    soft = cv2.dilate(soft, np.ones((9, 9), np.uint8))
+    prob = (np.clip(soft, 0, 1) * 255).astype(np.uint8)
+    before = _iou(prob > 127, person)
+    after = _iou(refine_mask_boundary(img, prob), person)
+    assert after > before + 0.05 and after > 0.9, (before, after)
+
+
+def test_object_probability_is_damped_on_the_head_unless_the_object_was_there():
+    from cogs.preprocess.objects import _suppress_head
+
+    kp = np.zeros((33, 3))
+    kp[:11, :2] = [[50 + 5 * np.cos(a), 40 + 5 * np.sin(a)] for a in np.linspace(0, 6, 11)]
+    kp[:11, 2] = 1.0
+    prob = np.ones((100, 100))
+    _suppress_head(prob, kp, np.array([90.0, 90.0]))
+    assert prob[40, 50] == pytest.approx(0.2) and prob[90, 90] == 1.0
+    prob = np.ones((100, 100))
+    _suppress_head(prob, kp, np.array([50.0, 41.0]))  # last seen on the head: untouched
+    assert prob.min() == 1.0

@@ -82,6 +82,12 @@ class Preprocess:
     person_threshold: float = 0.5
     """Threshold on MediaPipe's soft person mask."""
 
+    refine_person_masks: bool = False
+    """Sharpen MediaPipe's (low-resolution, upsampled) person mask with GrabCut in a band of
+    2 % of the person's height around its boundary. Off by default: on the synthetic
+    benchmark's H.264-encoded frames it lowered the mask IoU (0.906 -> 0.887), on clean
+    frames it raised it (to 0.916)."""
+
     body_iterations: int = 300
     """Optimiser iterations of the joint body fit."""
 

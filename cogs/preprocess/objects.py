@@ -8,13 +8,17 @@ Two engines:
   first mask and a colour model (object vs. rest-of-frame histograms). Every other frame,
   walking away from the prompt frame in both directions, is handled by
 
-  1. a per-pixel object probability from the colour model;
-  2. localisation: the window of the object's size with the highest mean probability,
-     weighted by a Gaussian around the constant-velocity prediction (a lost object widens
-     the search);
-  3. segmentation: GrabCut in a region around that window, seeded with the probable
-     object pixels;
-  4. clean-up: the connected component at the located window, holes filled, area checked
+  1. a per-pixel object probability from the colour model (damped on the person's head,
+     the commonest look-alike of a held object, unless the object was last seen there);
+  2. the previous mask carried over by dense optical flow; when the carried mask still
+     looks like the object (mean probability at least 0.7 of the prompt's) and no
+     better-looking window lies elsewhere, GrabCut around it segments the object (slow or
+     multi-coloured objects);
+  3. otherwise localisation by colour: the window of the object's size with the highest
+     mean probability, weighted towards the constant-velocity prediction (a fast object
+     such as a bounced ball, or one reappearing), then GrabCut seeded with the probable
+     object pixels there;
+  4. clean-up: the connected component at the located object, holes filled, area checked
      against the prompt mask.
 
 The person's mask is a soft prior here, not a hard exclusion: MediaPipe's person mask often
@@ -211,6 +215,71 @@ def _grabcut_seeded(rgb: np.ndarray, prob: np.ndarray, centre, size, human_prob:
     return out
 
 
+# -- optical flow ---------------------------------------------------------------------
+
+
+def warp_mask_by_flow(prev_rgb: np.ndarray, rgb: np.ndarray, prev_mask: np.ndarray, margin: float = 1.0) -> np.ndarray:
+    """The previous frame's mask carried into this frame by dense optical flow (Farneback),
+    computed in a window around the mask -> [H, W] bool (empty when nothing lands)."""
+    import cv2
+
+    H, W = prev_mask.shape
+    c, s = _mask_stats(prev_mask)
+    if c is None:
+        return np.zeros((H, W), bool)
+    r = (0.5 + margin) * s + 16
+    x0, x1 = int(max(0, c[0] - r[0])), int(min(W, c[0] + r[0] + 1))
+    y0, y1 = int(max(0, c[1] - r[1])), int(min(H, c[1] + r[1] + 1))
+    a = cv2.cvtColor(np.ascontiguousarray(rgb[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)
+    b = cv2.cvtColor(np.ascontiguousarray(prev_rgb[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)
+    # Flow from this frame to the previous one: where each pixel here came from.
+    flow = cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 4, 15, 3, 5, 1.2, 0)
+    gy, gx = np.mgrid[0 : y1 - y0, 0 : x1 - x0].astype(np.float32)
+    pm = prev_mask[y0:y1, x0:x1].astype(np.float32)
+    warped = cv2.remap(pm, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR, borderValue=0.0)
+    out = np.zeros((H, W), bool)
+    out[y0:y1, x0:x1] = warped > 0.5
+    return out
+
+
+def _grabcut_from_seed(rgb: np.ndarray, prob: np.ndarray, seed: np.ndarray, human_prob: np.ndarray | None, iterations: int = 3) -> np.ndarray:
+    """GrabCut around a predicted mask (e.g. flow-warped): its core is object, far away is not."""
+    import cv2
+
+    H, W = seed.shape
+    c, s = _mask_stats(seed)
+    size = float(max(s))
+    r = int(0.6 * size) + 6
+    ys, xs = np.nonzero(seed)
+    x0, x1 = max(0, xs.min() - 2 * r), min(W, xs.max() + 2 * r + 1)
+    y0, y1 = max(0, ys.min() - 2 * r), min(H, ys.max() + 2 * r + 1)
+    sd = seed[y0:y1, x0:x1].astype(np.uint8)
+    p = prob[y0:y1, x0:x1]
+    k_out = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    k_in = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * max(1, int(0.15 * size)) + 1,) * 2)
+    near = cv2.dilate(sd, k_out) > 0
+    core = cv2.erode(sd, k_in) > 0
+    gc = np.full(sd.shape, cv2.GC_BGD, np.uint8)
+    gc[near] = cv2.GC_PR_BGD
+    gc[(sd > 0) | (near & (p > 0.8))] = cv2.GC_PR_FGD
+    gc[core & (p > 0.2)] = cv2.GC_FGD
+    if human_prob is not None:
+        hp = human_prob[y0:y1, x0:x1]
+        gc[(hp > 0.9) & (p < 0.3) & ~core] = cv2.GC_BGD
+    if not ((gc == cv2.GC_BGD) | (gc == cv2.GC_PR_BGD)).any():
+        gc[0, :] = cv2.GC_BGD
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    crop = np.ascontiguousarray(rgb[y0:y1, x0:x1, ::-1])
+    try:
+        cv2.grabCut(crop, gc, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+        fg = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
+    except cv2.error:
+        fg = sd > 0
+    out = np.zeros((H, W), bool)
+    out[y0:y1, x0:x1] = fg
+    return out
+
+
 # -- tracking -------------------------------------------------------------------------
 
 
@@ -231,11 +300,12 @@ def _mask_stats(mask: np.ndarray):
     return centre, size
 
 
-def _locate(prob: np.ndarray, state: _State, ref_score: float) -> tuple[np.ndarray, float]:
+def _locate(prob: np.ndarray, state: _State, ref_score: float, hands: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
     """Centre and mean probability of the object-sized window that best explains the frame.
 
     The whole frame is searched: a window's mean object probability is weighted by
-    0.35 + 0.65 g, with g a Gaussian around the constant-velocity prediction, so a
+    0.35 + 0.65 g, with g a Gaussian around the constant-velocity prediction (or around a
+    visible hand, whichever is larger: handled objects stay near hands), so a
     clearly better-looking window anywhere wins over a mediocre one nearby (a fast or
     briefly hidden object is re-acquired), while near-ties go to the motion prediction.
     """
@@ -249,10 +319,81 @@ def _locate(prob: np.ndarray, state: _State, ref_score: float) -> tuple[np.ndarr
     sigma = max(1.5 * diag, 2.0 * float(np.linalg.norm(state.velocity))) * (1.0 + 0.5 * state.lost)
     yy, xx = np.mgrid[:H, :W]
     d2 = (xx + 0.5 - pred[0]) ** 2 + (yy + 0.5 - pred[1]) ** 2
-    total = score * (0.35 + 0.65 * np.exp(-0.5 * d2 / sigma**2))
+    g = np.exp(-0.5 * d2 / sigma**2)
+    if hands is not None:
+        # A handled object is likely at a hand: windows near a visible hand are as
+        # plausible as the motion prediction.
+        for hx, hy, hv in hands:
+            if np.isfinite(hx) and hv >= 0.5:
+                dh2 = (xx + 0.5 - hx) ** 2 + (yy + 0.5 - hy) ** 2
+                g = np.maximum(g, np.exp(-0.5 * dh2 / (0.75 * diag) ** 2))
+    total = score * (0.35 + 0.65 * g)
     i = int(np.argmax(total))
     y, x = divmod(i, W)
-    return np.array([x + 0.5, y + 0.5]), float(score[y, x])
+    return np.array([x + 0.5, y + 0.5]), float(score[y, x]), float(g[y, x])
+
+
+def _suppress_head(prob: np.ndarray, kp: np.ndarray, last_centre: np.ndarray) -> None:
+    """Damp the object probability on the person's head, in place.
+
+    Skin is the commonest look-alike of a handled object's colours and the face is always
+    in view; unless the object was last seen on the head, head pixels count 5x less.
+    """
+    face = kp[:11]  # nose, eyes, ears, mouth
+    if not np.isfinite(face).all() or np.median(face[:, 2]) < 0.5:
+        return
+    c = face[:, :2].mean(0)
+    r = 1.3 * float(np.linalg.norm(face[:, :2] - c, axis=1).max()) + 2.0
+    if np.linalg.norm(last_centre - c) < r:
+        return
+    H, W = prob.shape
+    x0, x1 = int(max(0, c[0] - r)), int(min(W, c[0] + r + 1))
+    y0, y1 = int(max(0, c[1] - r)), int(min(H, c[1] + r + 1))
+    if x1 <= x0 or y1 <= y0:
+        return
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    inside = (xx + 0.5 - c[0]) ** 2 + (yy + 0.5 - c[1]) ** 2 <= r * r
+    prob[y0:y1, x0:x1][inside] *= 0.2
+
+
+def _hand_points(kp2d: np.ndarray | None) -> np.ndarray | None:
+    """[T, 2, 3] per hand (left, right): mean pixel of wrist, index and pinky knuckles, and
+    the lowest of their visibilities; None without keypoints."""
+    if kp2d is None:
+        return None
+    out = np.full((len(kp2d), 2, 3), np.nan)
+    for h, idx in enumerate(([15, 17, 19], [16, 18, 20])):
+        k = kp2d[:, idx]
+        out[:, h, :2] = k[..., :2].mean(1)
+        out[:, h, 2] = k[..., 2].min(1)
+    return out
+
+
+def _hand_shift(hands: np.ndarray | None, t_from: int, t_to: int, mask: np.ndarray) -> np.ndarray | None:
+    """Displacement of the hand holding the object (the visible hand within one object size
+    of the mask's centre at ``t_from``) between two frames, or None."""
+    if hands is None:
+        return None
+    c, s = _mask_stats(mask)
+    if c is None:
+        return None
+    a, b = hands[t_from], hands[t_to]
+    best, best_d = None, float(np.max(s))
+    for h in range(2):
+        if not (np.isfinite(a[h]).all() and np.isfinite(b[h]).all()) or min(a[h, 2], b[h, 2]) < 0.5:
+            continue
+        d = float(np.linalg.norm(a[h, :2] - c))
+        if d <= best_d:
+            best, best_d = b[h, :2] - a[h, :2], d
+    return best
+
+
+def _shift_mask(mask: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    import cv2
+
+    H, W = mask.shape
+    M = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
+    return cv2.warpAffine(mask.astype(np.uint8), M, (W, H), flags=cv2.INTER_NEAREST) > 0
 
 
 def propagate_masks(
@@ -260,6 +401,8 @@ def propagate_masks(
     prompt_mask: np.ndarray,
     prompt_frame: int,
     human_probs: np.ndarray | None = None,
+    kp2d: np.ndarray | None = None,
+    hand_carry: bool = False,
     min_score: float = 0.5,
     adapt: float = 0.1,
     on_frame=None,
@@ -267,9 +410,14 @@ def propagate_masks(
     """Propagate one frame's object mask through the video (classical engine).
 
     images [T, H, W, 3] uint8; prompt_mask [H, W] bool at frame ``prompt_frame``;
-    human_probs [T, H, W] uint8 person probabilities (optional prior).
+    human_probs [T, H, W] uint8 person probabilities (optional prior); kp2d [T, 33, 3]
+    MediaPipe keypoints (optional): with ``hand_carry`` an object seen at a hand is also
+    predicted to move with it (off by default: it drags a dribbled ball along with the
+    hand into skin-coloured distractors).
     ``min_score``: a located window whose mean object probability is below this fraction of
-    the prompt mask's own counts as "object not visible" (occluded or out of frame).
+    the prompt mask's own counts as "object not visible" (occluded or out of frame); the
+    fraction is scaled by 0.7 where the motion prediction or a hand puts the object and by
+    1.3 far from both.
     Returns (masks [T, H, W] bool, confidence [T] in [0, 1]; 0 where the object was lost).
     """
     T, H, W, _ = images.shape
@@ -297,6 +445,7 @@ def propagate_masks(
             distractors = images.reshape(-1, 3)[pick]
     base_model = ColourModel.fit(images[prompt_frame], prompt_mask, ~ring, distractors)
     ref_score = float(base_model.prob(images[prompt_frame])[prompt_mask].mean())
+    hands = _hand_points(kp2d)
     done = 1
     if on_frame:
         on_frame(done)
@@ -304,13 +453,55 @@ def propagate_masks(
         state = _State(c0.copy(), np.zeros(2), s0.copy())
         model = base_model
         t = prompt_frame + direction
+        prev_mask, prev_t = prompt_mask, prompt_frame
         while 0 <= t < T:
             rgb = images[t]
             prob = model.prob(rgb)
-            centre, score = _locate(prob, state, ref_score)
+            if kp2d is not None:
+                _suppress_head(prob, kp2d[t], state.centre)
+            hp = None if human_probs is None else human_probs[t].astype(np.float32) / 255.0
             mask = np.zeros((H, W), bool)
-            if score >= min_score * ref_score:
-                hp = None if human_probs is None else human_probs[t].astype(np.float32) / 255.0
+            # 1. Optical flow from the last frame with the object: right for slow, textured
+            #    objects; a fast or reappearing object lands elsewhere and scores low.
+            candidates = []
+            if prev_t == t - direction:
+                candidates.append(warp_mask_by_flow(images[prev_t], rgb, prev_mask))
+            # 1b. An object held in a hand moves with that hand.
+            shift = _hand_shift(hands, prev_t, t, prev_mask) if hand_carry else None
+            if shift is not None:
+                candidates.append(_shift_mask(prev_mask, shift))
+            warped, flow_score = np.zeros((H, W), bool), 0.0
+            for cand in candidates:
+                sc = float(prob[cand].mean()) if cand.sum() >= 0.15 * ref_area else 0.0
+                if sc > flow_score:
+                    warped, flow_score = cand, sc
+            if shift is not None:
+                state.centre = _mask_stats(prev_mask)[0] + shift - state.velocity  # the prediction follows the hand
+            # The carried mask must look clearly like the object (a drifting flow slides onto
+            # similar-coloured skin or clothes); the colour search below needs less.
+            use_flow = flow_score >= 0.7 * ref_score
+            centre, score, plausible = _locate(prob, state, ref_score, None if hands is None else hands[t])
+            # Evidence needed falls with prior plausibility: min_score at a moderately likely
+            # place, 0.7x that where predicted or at a hand, 1.3x far from both.
+            needed = min_score * ref_score * (1.3 - 0.6 * plausible)
+            if use_flow:
+                cw, _ = _mask_stats(warped)
+                far = np.linalg.norm(centre - cw) > 0.5 * float(np.hypot(*state.size))
+                if far and score > 1.3 * flow_score:
+                    use_flow = False  # a better-looking window elsewhere: the flow drifted
+            if use_flow:
+                seg = _grabcut_from_seed(rgb, prob, warped, hp)
+                cw, _ = _mask_stats(warped)
+                seg = _fill_holes(_largest_component_near(seg, tuple(cw))) if seg.any() else seg
+                agree = np.logical_and(seg, warped).sum() / max(np.logical_or(seg, warped).sum(), 1)
+                prev_area = float(prev_mask.sum())
+                seg_ok = 0.25 * ref_area <= seg.sum() <= 3.0 * ref_area
+                if seg_ok and (agree >= 0.7 or (agree >= 0.3 and abs(np.log(seg.sum() / prev_area)) <= abs(np.log(warped.sum() / prev_area)))):
+                    mask, score = seg, max(flow_score, float(prob[seg].mean()))
+                else:
+                    use_flow = False  # GrabCut and the motion disagree: search by colour instead
+            if not use_flow and score >= needed:
+                # 2. Colour search (see _locate) and GrabCut seeded from the colour model.
                 seg = _grabcut_seeded(rgb, prob, centre, state.size, hp)
                 seg = _fill_holes(_largest_component_near(seg, tuple(centre))) if seg.any() else seg
                 area = float(seg.sum())
@@ -323,6 +514,8 @@ def propagate_masks(
                     fallback = (ell <= 1.0) & (prob > 0.5)
                     if fallback.sum() >= 0.25 * ref_area:
                         mask = _fill_holes(_largest_component_near(fallback, tuple(centre)))
+            if mask.any():
+                prev_mask, prev_t = mask, t
             if mask.any():
                 c, s = _mask_stats(mask)
                 v_new = c - state.centre if state.lost == 0 else (c - state.centre) / (state.lost + 1)

@@ -196,3 +196,41 @@ def refine_masks_sam2(images: np.ndarray, track: PersonTrack, checkpoint: Path, 
             if on_frame:
                 on_frame(t + 1)
     return out
+
+
+def refine_mask_boundary(rgb: np.ndarray, prob: np.ndarray, threshold: float = 0.5, band_frac: float = 0.03, iterations: int = 3) -> np.ndarray:
+    """Sharpen a soft person mask's boundary with GrabCut inside a narrow band -> [H, W] bool.
+
+    MediaPipe's mask is predicted at low resolution and upsampled, so it bleeds a few
+    pixels over the background. Pixels deeper than the band inside the mask are kept as
+    person, pixels beyond the band outside it as background; only the band (``band_frac``
+    of the person's height on each side) is relabelled, by GrabCut colour models learnt
+    from this frame, so a wrong colour model can move the boundary by at most the band.
+    """
+    import cv2
+
+    mask = prob >= threshold * 255 if prob.dtype == np.uint8 else prob >= threshold
+    if mask.sum() < 50:
+        return mask
+    ys, xs = np.nonzero(mask)
+    band = max(2, int(round(band_frac * (ys.max() - ys.min() + 1))))
+    H, W = mask.shape
+    y0, y1 = max(0, ys.min() - 2 * band), min(H, ys.max() + 2 * band + 1)
+    x0, x1 = max(0, xs.min() - 2 * band), min(W, xs.max() + 2 * band + 1)
+    m = mask[y0:y1, x0:x1].astype(np.uint8)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band + 1, 2 * band + 1))
+    inner = cv2.erode(m, k) > 0
+    outer = cv2.dilate(m, k) > 0
+    gc = np.full(m.shape, cv2.GC_BGD, np.uint8)
+    gc[outer] = cv2.GC_PR_BGD
+    gc[m > 0] = cv2.GC_PR_FGD
+    gc[inner] = cv2.GC_FGD
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    crop = np.ascontiguousarray(rgb[y0:y1, x0:x1, ::-1])
+    try:
+        cv2.grabCut(crop, gc, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    except cv2.error:
+        return mask
+    out = np.zeros_like(mask)
+    out[y0:y1, x0:x1] = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
+    return out

@@ -207,7 +207,7 @@ class _Runner:
             self.fps = float(fmeta["fps"])
             self.source_indices = fr["source_indices"]
 
-            pe, _ = self._step(ui, 2, "persons", {"threshold": cfg.person_threshold, "sam2": str(cfg.sam2_checkpoint)}, ["frames"], lambda lb: self._persons(lb, ui, images))
+            pe, _ = self._step(ui, 2, "persons", {"threshold": cfg.person_threshold, "refine": cfg.refine_person_masks, "sam2": str(cfg.sam2_checkpoint)}, ["frames"], lambda lb: self._persons(lb, ui, images))
             if not pe["detected"].any():
                 raise UserError(f"no person detected in any of the {T} frames of {src}")
 
@@ -279,6 +279,20 @@ class _Runner:
         T = len(images)
         update = ui.task(label, T)
         track = detect_persons(images, on_frame=lambda k: update(k), mask_threshold=self.cfg.person_threshold)
+        if self.cfg.refine_person_masks and self.cfg.sam2_checkpoint is None:
+            import cv2
+
+            from cogs.preprocess.persons import refine_mask_boundary
+
+            update_r = ui.task(f"{label} (boundary)", T)
+            for t in range(T):
+                if track.detected[t] and track.masks[t].any():
+                    ys = np.nonzero(track.masks[t])[0]
+                    band = max(2, int(0.02 * (ys.max() - ys.min() + 1)))
+                    # Only near the cleaned mask: refinement moves boundaries, never adds blobs.
+                    near = cv2.dilate(track.masks[t].astype(np.uint8), np.ones((2 * band + 1,) * 2, np.uint8)) > 0
+                    track.masks[t] = refine_mask_boundary(images[t], track.probs[t], self.cfg.person_threshold) & near
+                update_r(t + 1)
         if self.cfg.sam2_checkpoint is not None:
             update2 = ui.task(f"{label} (sam2)", T)
             track.masks = refine_masks_sam2(images, track, self.cfg.sam2_checkpoint, self.cfg.sam2_config, on_frame=lambda k: update2(k))
@@ -309,7 +323,7 @@ class _Runner:
                 conf = masks.reshape(T, -1).any(1).astype(np.float64)
             else:
                 prompt = O.grabcut_box(images[k], box)
-                masks, conf = O.propagate_masks(images, prompt, k, human_probs=pe["probs"], on_frame=lambda n: update(n))
+                masks, conf = O.propagate_masks(images, prompt, k, human_probs=pe["probs"], kp2d=pe["kp2d"], on_frame=lambda n: update(n))
         if not masks.any():
             raise UserError("the object masks are empty in every frame (check --object-box / --object-masks)")
         n = int(masks.reshape(T, -1).any(1).sum())
