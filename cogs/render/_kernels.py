@@ -180,16 +180,18 @@ def _support_span(g, means2d, conics, opacities, out):
         out[g, 1] = my + hy - 0.5
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _support_spans_parallel(means2d, conics, opacities, out):
-    for g in prange(means2d.shape[0]):
-        _support_span(g, means2d, conics, opacities, out)
-
-
 @njit(cache=True, nogil=True)
-def _support_spans_serial(means2d, conics, opacities, out):
-    for g in range(means2d.shape[0]):
+def _support_spans_range(lo, hi, means2d, conics, opacities, out):
+    for g in range(lo, hi):
         _support_span(g, means2d, conics, opacities, out)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _support_spans_chunks(means2d, conics, opacities, out):
+    n = means2d.shape[0]
+    n_chunks = (n + 1023) // 1024
+    for k in prange(n_chunks):
+        _support_spans_range(k * 1024, min(n, (k + 1) * 1024), means2d, conics, opacities, out)
 
 
 # Below this many Gaussians an O(N) pass costs less than waking the thread pool (and on a
@@ -203,8 +205,11 @@ def support_spans(means2d, conics, opacities):
     ellipse ``d^T conic d <= 2 ln(255 o)``, enlarged by margins covering float32 rounding
     of the exponent. Empty (lo > hi) when o < 1/255."""
     out = np.empty((means2d.shape[0], 2), np.float64)
-    fn = _support_spans_parallel if means2d.shape[0] >= PARALLEL_MIN_N else _support_spans_serial
-    fn(means2d, conics, opacities, out)
+    n = means2d.shape[0]
+    if n >= PARALLEL_MIN_N:
+        _support_spans_chunks(means2d, conics, opacities, out)
+    else:
+        _support_spans_range(0, n, means2d, conics, opacities, out)
     return out
 
 

@@ -26,6 +26,7 @@ from cogs.render._kernels import PARALLEL_MIN_N
 from cogs.render.projection import EPS2D, Projected, _MAX_RADIUS
 
 _QUAT_EPS = 1e-12  # as cogs.geometry.rotations.quat_normalize
+_CHUNK = 1024  # Gaussians per parallel work item
 
 
 @njit(cache=True, nogil=True)
@@ -36,22 +37,32 @@ def _rotmat(qw, qx, qy, qz):
 
 
 @njit(cache=True, nogil=True)
-def _unit_quat(q):
-    n = math.sqrt(float(q[0]) ** 2 + float(q[1]) ** 2 + float(q[2]) ** 2 + float(q[3]) ** 2)
+def _unit_quat(q0, q1, q2, q3):
+    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     if n > _QUAT_EPS:
-        return q[0] / n, q[1] / n, q[2] / n, q[3] / n, n
+        return q0 / n, q1 / n, q2 / n, q3 / n, n
     return 1.0, 0.0, 0.0, 0.0, 0.0
 
 
+# The camera travels as a flat tuple of floats (a value, unlike an array argument, which
+# costs reference-count traffic on every call of the per-Gaussian helpers):
+# V row-major 3x4 (12), fx, fy, cx, cy, width, height, near, far, eps2d.
+def camera_tuple(V: np.ndarray, K: np.ndarray, width, height, near, far, eps2d) -> tuple:
+    return tuple(float(v) for v in V[:3, :4].reshape(-1)) + (
+        float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), float(width),
+        float(height), float(near), float(far), float(eps2d))
+
+
 @njit(cache=True, nogil=True)
-def _camera_terms(mean, V, K, width, height, near, far):
-    """Camera-space point, depth flag, clamped normalised coordinates and limit flags."""
-    x = V[0, 0] * mean[0] + V[0, 1] * mean[1] + V[0, 2] * mean[2] + V[0, 3]
-    y = V[1, 0] * mean[0] + V[1, 1] * mean[1] + V[1, 2] * mean[2] + V[1, 3]
-    z = V[2, 0] * mean[0] + V[2, 1] * mean[1] + V[2, 2] * mean[2] + V[2, 3]
+def _screen_terms(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam):
+    """Everything the forward and backward share for one Gaussian (scalars only)."""
+    (V00, V01, V02, V03, V10, V11, V12, V13, V20, V21, V22, V23,
+     fx, fy, cx, cy, width, height, near, far, eps2d) = cam
+    x = V00 * m0 + V01 * m1 + V02 * m2 + V03
+    y = V10 * m0 + V11 * m1 + V12 * m2 + V13
+    z = V20 * m0 + V21 * m1 + V22 * m2 + V23
     in_depth = (z > near) and (z < far)
     zs = z if in_depth else 1.0
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     tan_x = 0.5 * width / fx
     tan_y = 0.5 * height / fy
     lim_xp = (width - cx) / fx + 0.3 * tan_x
@@ -64,25 +75,15 @@ def _camera_terms(mean, V, K, width, height, near, far):
     vc = min(max(v, -lim_yn), lim_yp)
     u_free = (u > -lim_xn) and (u < lim_xp)
     v_free = (v > -lim_yn) and (v < lim_yp)
-    return x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free
-
-
-@njit(cache=True, nogil=True)
-def _screen_terms(i, means, quats, scales, V, K, width, height, near, far, eps2d):
-    """Everything the forward and backward share for Gaussian i (all scalars: no heap)."""
-    x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free = _camera_terms(
-        means[i], V, K, width, height, near, far)
-    fx, fy = K[0, 0], K[1, 1]
     J00 = fx / zs
     J02 = -fx * uc / zs
     J11 = fy / zs
     J12 = -fy * vc / zs
     # A = J W (2x3)
-    A = (J00 * V[0, 0] + J02 * V[2, 0], J00 * V[0, 1] + J02 * V[2, 1], J00 * V[0, 2] + J02 * V[2, 2],
-         J11 * V[1, 0] + J12 * V[2, 0], J11 * V[1, 1] + J12 * V[2, 1], J11 * V[1, 2] + J12 * V[2, 2])
-    qw, qx, qy, qz, qn = _unit_quat(quats[i])
+    A = (J00 * V00 + J02 * V20, J00 * V01 + J02 * V21, J00 * V02 + J02 * V22,
+         J11 * V10 + J12 * V20, J11 * V11 + J12 * V21, J11 * V12 + J12 * V22)
+    qw, qx, qy, qz, qn = _unit_quat(q0, q1, q2, q3)
     R = _rotmat(qw, qx, qy, qz)
-    s0, s1, s2 = float(scales[i, 0]), float(scales[i, 1]), float(scales[i, 2])
     # M = R diag(s)
     M = (R[0] * s0, R[1] * s1, R[2] * s2, R[3] * s0, R[4] * s1, R[5] * s2,
          R[6] * s0, R[7] * s1, R[8] * s2)
@@ -96,73 +97,81 @@ def _screen_terms(i, means, quats, scales, V, K, width, height, near, far, eps2d
     det = a * c - b * b
     ok = in_depth and det > 0.0 and det < 1e300
     return (x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free, A, M, B, R,
-            (qw, qx, qy, qz, qn), (s0, s1, s2), a, b, c, det, ok)
+            (qw, qx, qy, qz, qn), a, b, c, det, ok)
 
 
 @njit(cache=True, nogil=True)
-def _forward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d,
-                 means2d, conics, depths, radii):
-    (x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free, A, M, B, R, q, sc,
-     a, b, c, det, ok) = _screen_terms(i, means, quats, scales, V, K, width, height,
-                                       near, far, eps2d)
-    mx = K[0, 0] * u + K[0, 2]
-    my = K[1, 1] * v + K[1, 2]
-    means2d[i, 0] = mx
-    means2d[i, 1] = my
-    depths[i] = z
+def _forward_one(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam):
+    """-> (means2d x, y, depth, conic a, b, c, radius)"""
+    (x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free, A, M, B, R, q,
+     a, b, c, det, ok) = _screen_terms(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam)
+    fx, fy, cx, cy, width, height = cam[12], cam[13], cam[14], cam[15], cam[16], cam[17]
+    mx = fx * u + cx
+    my = fy * v + cy
     ds = det if ok else 1.0
-    conics[i, 0] = c / ds
-    conics[i, 1] = -b / ds
-    conics[i, 2] = a / ds
-    radii[i] = 0
+    radius = 0
     if ok:
         hd = 0.5 * (a - c)
         lam = 0.5 * (a + c) + math.sqrt(hd * hd + b * b)
         r = min(math.ceil(3.0 * math.sqrt(max(lam, 0.0))), _MAX_RADIUS)
         if mx + r > 0 and mx - r < width and my + r > 0 and my - r < height:
-            radii[i] = np.int32(r)
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _forward_parallel(means, quats, scales, V, K, width, height, near, far, eps2d, out):
-    for i in prange(means.shape[0]):
-        _forward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d, *out)
+            radius = int(r)
+    return mx, my, z, c / ds, -b / ds, a / ds, radius
 
 
 @njit(cache=True, nogil=True)
-def _forward_serial(means, quats, scales, V, K, width, height, near, far, eps2d, out):
-    for i in range(means.shape[0]):
-        _forward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d, *out)
+def _forward_range(lo, hi, means, quats, scales, cam, means2d, conics, depths, radii):
+    for i in range(lo, hi):
+        mx, my, z, ca, cb, cc, r = _forward_one(
+            float(means[i, 0]), float(means[i, 1]), float(means[i, 2]),
+            float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3]),
+            float(scales[i, 0]), float(scales[i, 1]), float(scales[i, 2]), cam)
+        means2d[i, 0] = mx
+        means2d[i, 1] = my
+        depths[i] = z
+        conics[i, 0] = ca
+        conics[i, 1] = cb
+        conics[i, 2] = cc
+        radii[i] = r
 
 
-def project_forward(means, quats, scales, V, K, width, height, near, far, eps2d):
+@njit(cache=True, nogil=True, parallel=True)
+def _forward_chunks(means, quats, scales, cam, means2d, conics, depths, radii):
+    # prange over chunks calling a serial function: a parfor body of its own compiles to
+    # far slower code for this tuple-heavy arithmetic.
+    n = means.shape[0]
+    n_chunks = (n + _CHUNK - 1) // _CHUNK
+    for k in prange(n_chunks):
+        _forward_range(k * _CHUNK, min(n, (k + 1) * _CHUNK), means, quats, scales, cam,
+                       means2d, conics, depths, radii)
+
+
+def project_forward(means, quats, scales, cam):
     n = means.shape[0]
     out = (np.empty((n, 2), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
            np.zeros(n, np.int32))
-    fn = _forward_parallel if n >= PARALLEL_MIN_N else _forward_serial
-    fn(means, quats, scales, V, K, width, height, near, far, eps2d, out)
+    if n >= PARALLEL_MIN_N:
+        _forward_chunks(means, quats, scales, cam, *out)
+    else:
+        _forward_range(0, n, means, quats, scales, cam, *out)
     return out
 
 
 @njit(cache=True, nogil=True)
-def _backward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d,
-                  v_means2d, v_conics, v_depths, v_means, v_quats, v_scales):
-    fx, fy = K[0, 0], K[1, 1]
-    (x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free, A, M, B, R, q, sc,
-     a, b, c, det, ok) = _screen_terms(i, means, quats, scales, V, K, width, height,
-                                       near, far, eps2d)
+def _backward_one(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam, gmx, gmy, g0, g1, g2, gd):
+    """Upstream (means2d, conic, depth) grads -> (mean xyz, quat wxyz, scale xyz) grads."""
+    (x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free, A, M, B, R, q,
+     a, b, c, det, ok) = _screen_terms(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam)
+    (V00, V01, V02, V03, V10, V11, V12, V13, V20, V21, V22, V23, fx, fy) = cam[:14]
     # camera-space point gradient: means2d = (fx x/zs + cx, fy y/zs + cy), depth = z
-    gmx = float(v_means2d[i, 0])
-    gmy = float(v_means2d[i, 1])
     g_x = gmx * fx / zs
     g_y = gmy * fy / zs
-    g_z = float(v_depths[i])
+    g_z = gd
     if in_depth:
         g_z -= (gmx * fx * x + gmy * fy * y) / (zs * zs)
+    vq0 = vq1 = vq2 = vq3 = 0.0
+    vs0 = vs1 = vs2 = 0.0
     if ok:
-        g0 = float(v_conics[i, 0])
-        g1 = float(v_conics[i, 1])
-        g2 = float(v_conics[i, 2])
         d2 = det * det
         # conic = (c, -b, a) / det with det = a c - b^2
         v_a = g0 * (-c * c / d2) + g1 * (b * c / d2) + g2 * (1.0 / det - a * c / d2)
@@ -193,15 +202,14 @@ def _backward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d
         vM7 = A[2] * vB1 + A[5] * vB4
         vM8 = A[2] * vB2 + A[5] * vB5
         # M = R diag(s)
-        s0, s1, s2 = sc
-        v_scales[i, 0] = vM0 * R[0] + vM3 * R[3] + vM6 * R[6]
-        v_scales[i, 1] = vM1 * R[1] + vM4 * R[4] + vM7 * R[7]
-        v_scales[i, 2] = vM2 * R[2] + vM5 * R[5] + vM8 * R[8]
+        vs0 = vM0 * R[0] + vM3 * R[3] + vM6 * R[6]
+        vs1 = vM1 * R[1] + vM4 * R[4] + vM7 * R[7]
+        vs2 = vM2 * R[2] + vM5 * R[5] + vM8 * R[8]
         r0, r1, r2 = vM0 * s0, vM1 * s1, vM2 * s2
         r3, r4, r5 = vM3 * s0, vM4 * s1, vM5 * s2
         r6, r7, r8 = vM6 * s0, vM7 * s1, vM8 * s2
         qw, qx, qy, qz, qn = q
-        if qn > 0.0:
+        if qn > 0.0:  # a zero quaternion is the constant identity: no gradient
             gw = 2.0 * (-qz * r1 + qy * r2 + qz * r3 - qx * r5 - qy * r6 + qx * r7)
             gx = 2.0 * (qy * r1 + qz * r2 + qy * r3 - 2.0 * qx * r4 - qw * r5
                         + qz * r6 + qw * r7 - 2.0 * qx * r8)
@@ -209,16 +217,17 @@ def _backward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d
                         - qw * r6 + qz * r7 - 2.0 * qy * r8)
             gz = 2.0 * (-2.0 * qz * r0 - qw * r1 + qx * r2 + qw * r3
                         - 2.0 * qz * r4 + qy * r5 + qx * r6 + qy * r7)
+            # through the normalisation q / |q|
             dot = qw * gw + qx * gx + qy * gy + qz * gz
-            v_quats[i, 0] = (gw - qw * dot) / qn
-            v_quats[i, 1] = (gx - qx * dot) / qn
-            v_quats[i, 2] = (gy - qy * dot) / qn
-            v_quats[i, 3] = (gz - qz * dot) / qn
+            vq0 = (gw - qw * dot) / qn
+            vq1 = (gx - qx * dot) / qn
+            vq2 = (gy - qy * dot) / qn
+            vq3 = (gz - qz * dot) / qn
         # A = J W
-        vJ00 = vA0 * V[0, 0] + vA1 * V[0, 1] + vA2 * V[0, 2]
-        vJ02 = vA0 * V[2, 0] + vA1 * V[2, 1] + vA2 * V[2, 2]
-        vJ11 = vA3 * V[1, 0] + vA4 * V[1, 1] + vA5 * V[1, 2]
-        vJ12 = vA3 * V[2, 0] + vA4 * V[2, 1] + vA5 * V[2, 2]
+        vJ00 = vA0 * V00 + vA1 * V01 + vA2 * V02
+        vJ02 = vA0 * V20 + vA1 * V21 + vA2 * V22
+        vJ11 = vA3 * V10 + vA4 * V11 + vA5 * V12
+        vJ12 = vA3 * V20 + vA4 * V21 + vA5 * V22
         # J00 = fx/z, J02 = -fx uc/z, J11 = fy/z, J12 = -fy vc/z, uc = clamp(x/z)
         zz = z * z
         g_z += -vJ00 * fx / zz - vJ11 * fy / zz + vJ02 * fx * uc / zz + vJ12 * fy * vc / zz
@@ -228,29 +237,47 @@ def _backward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d
         if v_free:
             g_y += vJ12 * (-fy / zz)
             g_z += vJ12 * (fy * y / (zz * z))
-    for k in range(3):
-        v_means[i, k] = V[0, k] * g_x + V[1, k] * g_y + V[2, k] * g_z
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _backward_parallel(means, quats, scales, V, K, width, height, near, far, eps2d, grads, out):
-    for i in prange(means.shape[0]):
-        _backward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d, *grads, *out)
+    # mean: t = W m + T
+    vm0 = V00 * g_x + V10 * g_y + V20 * g_z
+    vm1 = V01 * g_x + V11 * g_y + V21 * g_z
+    vm2 = V02 * g_x + V12 * g_y + V22 * g_z
+    return vm0, vm1, vm2, vq0, vq1, vq2, vq3, vs0, vs1, vs2
 
 
 @njit(cache=True, nogil=True)
-def _backward_serial(means, quats, scales, V, K, width, height, near, far, eps2d, grads, out):
-    for i in range(means.shape[0]):
-        _backward_one(i, means, quats, scales, V, K, width, height, near, far, eps2d, *grads, *out)
+def _backward_range(lo, hi, means, quats, scales, cam, v_means2d, v_conics, v_depths, v_means,
+                    v_quats, v_scales):
+    for i in range(lo, hi):
+        g = _backward_one(
+            float(means[i, 0]), float(means[i, 1]), float(means[i, 2]),
+            float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3]),
+            float(scales[i, 0]), float(scales[i, 1]), float(scales[i, 2]), cam,
+            float(v_means2d[i, 0]), float(v_means2d[i, 1]), float(v_conics[i, 0]),
+            float(v_conics[i, 1]), float(v_conics[i, 2]), float(v_depths[i]))
+        for k in range(3):
+            v_means[i, k] = g[k]
+            v_scales[i, k] = g[7 + k]
+        for k in range(4):
+            v_quats[i, k] = g[3 + k]
 
 
-def project_backward(means, quats, scales, V, K, width, height, near, far, eps2d,
-                     v_means2d, v_conics, v_depths):
+@njit(cache=True, nogil=True, parallel=True)
+def _backward_chunks(means, quats, scales, cam, v_means2d, v_conics, v_depths, v_means,
+                     v_quats, v_scales):
+    n = means.shape[0]
+    n_chunks = (n + _CHUNK - 1) // _CHUNK
+    for k in prange(n_chunks):
+        _backward_range(k * _CHUNK, min(n, (k + 1) * _CHUNK), means, quats, scales, cam,
+                        v_means2d, v_conics, v_depths, v_means, v_quats, v_scales)
+
+
+def project_backward(means, quats, scales, cam, v_means2d, v_conics, v_depths):
     n = means.shape[0]
     out = (np.zeros((n, 3), np.float32), np.zeros((n, 4), np.float32), np.zeros((n, 3), np.float32))
-    fn = _backward_parallel if n >= PARALLEL_MIN_N else _backward_serial
-    fn(means, quats, scales, V, K, width, height, near, far, eps2d,
-       (v_means2d, v_conics, v_depths), out)
+    if n >= PARALLEL_MIN_N:
+        _backward_chunks(means, quats, scales, cam, v_means2d, v_conics, v_depths, *out)
+    else:
+        _backward_range(0, n, means, quats, scales, cam, v_means2d, v_conics, v_depths, *out)
     return out
 
 
@@ -261,8 +288,9 @@ def _np(t: Tensor, dtype=np.float32) -> np.ndarray:
 class _Project(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, viewmat, K, width, height, near, far):
-        args = (_np(means), _np(quats), _np(scales), _np(viewmat, np.float64), _np(K, np.float64),
-                float(width), float(height), float(near), float(far), EPS2D)
+        cam = camera_tuple(_np(viewmat, np.float64), _np(K, np.float64), width, height, near,
+                           far, EPS2D)
+        args = (_np(means), _np(quats), _np(scales), cam)
         means2d, conics, depths, radii = project_forward(*args)
         ctx.args = args
         ctx.like = (means, quats, scales)
