@@ -76,12 +76,15 @@ class Case:
         self.scene = splat_scene(n, width, height, seed=0)
         g = torch.Generator().manual_seed(1)
         self.w = [torch.randn(height, width, c, generator=g) for c in (3, 1, 1)]
+        # leaf parameters, as an optimiser holds them
+        self.params = [t.clone().requires_grad_(True) for t in self.scene.gaussians()]
 
     def run(self, backend: str, backward: bool) -> None:
         from cogs.render import rasterize
 
-        params = [t.clone().requires_grad_(True) for t in self.scene.gaussians()]
-        out = rasterize(*params, *self.scene.camera(), backend=backend)
+        for p in self.params:
+            p.grad = None
+        out = rasterize(*self.params, *self.scene.camera(), backend=backend)
         if backward:
             loss = ((out.colors * self.w[0]).sum() + (out.alpha * self.w[1]).sum()
                     + (out.depth * self.w[2]).sum())
@@ -194,7 +197,8 @@ def main() -> None:
             case = Case(n, width, height)
             s = case.scene
             pairs = count_pairs(s.means, s.quats, s.scales, s.viewmat, s.K, width, height)
-            row = {"width": width, "height": height, "n_gaussians": n, "pairs": pairs}
+            row = {"width": width, "height": height, "n_gaussians": n, "pairs": pairs,
+                   "load_avg_1min": round(os.getloadavg()[0], 2)}
             log(f"{width}x{height} N={n}: pairs={pairs:,}")
             for name in ("cpu", "torch"):
                 if name == "torch" and torch_s_per_pair is not None:

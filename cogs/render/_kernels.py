@@ -371,12 +371,13 @@ def _backward_tile(t, offsets, ids, means2d, conics, opacities, features, spans,
         b = conics[g, 1]
         c = conics[g, 2]
         r0, r1 = _support_rows(spans, g, y0, h)
-        open_rows = False
-        for r in range(r0, r1):
-            if row_last[r] >= j:
-                open_rows = True
-        if not open_rows:
-            continue  # every pixel it could touch had stopped before it
+        # trim rows where every pixel had stopped before this Gaussian
+        while r0 < r1 and row_last[r0] < j:
+            r0 += 1
+        while r1 > r0 and row_last[r1 - 1] < j:
+            r1 -= 1
+        if r0 >= r1:
+            continue
         lo = np.uint64(r0 * TILE)
         hi = np.uint64(r1 * TILE)
         for q in range(lo, hi):

@@ -154,8 +154,8 @@ def _validate(means, quats, scales, opacities, colors, viewmat, K, width, height
         raise ValueError(f"rasterize: `background` must have shape [{D}], got {list(background.shape)}")
 
     for name, t in named.items():
-        bad = int((~torch.isfinite(t.detach())).sum().item())
-        if bad:
+        if not bool(torch.isfinite(t.detach()).all()):
+            bad = int((~torch.isfinite(t.detach())).sum().item())
             raise ValueError(f"rasterize: `{name}` contains {bad} non-finite values")
     return D
 
