@@ -127,7 +127,7 @@ def bin_gaussians(means2d, radii, order, tiles_x, tiles_y):
     """
     n = means2d.shape[0]
     n_tiles = tiles_x * tiles_y
-    ranges = np.zeros((n, 4), np.int64)
+    ranges = np.zeros((n, 4), np.int32)
     ts = _F32(TILE)
     for g in range(n):
         if radii[g] <= 0:
@@ -140,8 +140,7 @@ def bin_gaussians(means2d, radii, order, tiles_x, tiles_y):
         ranges[g, 2] = min(max(math.floor(my - r), 0), tiles_y)
         ranges[g, 3] = min(max(math.ceil(my + r), 0), tiles_y)
     counts = np.zeros(n_tiles + 1, np.int64)
-    for k in range(n):
-        g = order[k]
+    for g in range(n):  # counts do not depend on the order: walk memory in sequence
         for ty in range(ranges[g, 2], ranges[g, 3]):
             for tx in range(ranges[g, 0], ranges[g, 1]):
                 counts[ty * tiles_x + tx + 1] += 1
