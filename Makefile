@@ -11,11 +11,16 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test install clean
 
+# mediapipe (preprocess extra) pulls opencv-contrib-python, a GUI build sharing the cv2
+# folder with opencv-python-headless and needing libGL: remove it and restore the headless
+# build, so exactly one OpenCV (headless) wins.
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q "$(TORCH)"
-	$(PY) -m pip install -q -e ".[dev]"
+	$(PY) -m pip install -q -e ".[dev,preprocess]"
+	$(PY) -m pip uninstall -q -y opencv-contrib-python
+	$(PY) -m pip install -q --force-reinstall --no-deps "opencv-python-headless==$$($(PY) -c 'import importlib.metadata as m; print(m.version("opencv-python-headless"))')"
 	touch $(STAMP)
 
 install: $(STAMP)

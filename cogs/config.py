@@ -72,16 +72,17 @@ class LossWeights:
     anchor_scale: float = 1.0
     anchor_rotation: float = 0.01
     anchor_opacity: float = 0.1
-    pose_refine_reg: float = 0.05
+    pose_refine_reg: float = 1.0
+    """Weight of the squared size of the pose corrections (radians^2 summed over bones, m^2)."""
     # -- object (III, IV; kept lighter in V, VI) --
     object_bce: float = 1.0
     object_dice: float = 1.0
     object_edge: float = 0.5
     object_rgb: float = 0.5
     object_unpremultiplied: float = 0.2
-    pose_prior: float = 0.05
+    pose_prior: float = 0.5
     """Translation part of the object pose prior, metres (L1)."""
-    pose_prior_rotation: float = 0.02
+    pose_prior_rotation: float = 0.1
     """Rotation part (geodesic, radians) of the pose prior."""
     acceleration: float = 50.0
     rotation_smoothness: float = 0.05
@@ -137,8 +138,11 @@ class LearningRates:
     human_means: float = 2e-4
     human_field: float = 2e-3
     human_color: float = 5e-3
-    human_pose: float = 1e-3
+    human_pose: float = 5e-4
+    """Radians per step on the keyframed pose corrections."""
     human_transl: float = 2e-4
+    shading: float = 2e-3
+    """Irradiance coefficients of the human and object branches."""
 
 
 @dataclass
@@ -171,7 +175,7 @@ class TrainConfig:
 def quick_config() -> TrainConfig:
     """Scaled for a 2-core CPU: the demo trains in about a quarter of an hour."""
     c = TrainConfig(preset="quick")
-    c.schedule = Schedule(I=350, II=100, III=250, IV=100, V=400, VI=800)
+    c.schedule = Schedule(I=800, II=200, III=600, IV=250, V=600, VI=1200)
     c.branches.human.n_gaussians = 15_000
     c.branches.human.triplane_resolution = 96
     c.branches.object.max_gaussians = 4000
@@ -230,6 +234,11 @@ def apply_overrides(cfg: TrainConfig, overrides: list[str]) -> TrainConfig:
         if isinstance(old, bool) and not isinstance(value, bool):
             raise UserError(f"--set {item!r}: {leaf} must be true or false")
         if isinstance(old, (int, float)) and not isinstance(old, bool):
+            if isinstance(value, str):  # YAML 1.1 reads "2e-3" as a string
+                try:
+                    value = float(value)
+                except ValueError:
+                    pass
             if not isinstance(value, (int, float)) or isinstance(value, bool):
                 raise UserError(f"--set {item!r}: {leaf} must be a number")
             value = type(old)(value)

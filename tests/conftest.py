@@ -3,6 +3,10 @@ once per machine, by `cogs doctor --warm` before the suite)."""
 
 from __future__ import annotations
 
+import fcntl
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -15,6 +19,25 @@ def body_model():
     from cogs.body import load_body_model
 
     return load_body_model("anny")
+
+
+@pytest.fixture(scope="session")
+def default_scene_dir(tmp_path_factory) -> Path:
+    """The default synthetic benchmark scene (100 frames, 256x192), generated once per
+    test run and shared between xdist workers through a locked folder (~30 s)."""
+    from cogs.data.scene import save_scene
+    from cogs.data.synth import SynthConfig, generate_scene
+
+    # Under xdist each worker's basetemp sits in one folder per run: share that; a plain
+    # run uses its own basetemp (never a folder an older run could have left behind).
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    root = shared / "synth_default"
+    with open(shared / "synth_default.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (root / "scene.json").exists():
+            save_scene(generate_scene(SynthConfig(), show_progress=False), root)
+    return root
 
 
 @pytest.fixture

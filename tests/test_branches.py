@@ -77,7 +77,7 @@ def small_human(body_model):
     cfg = HumanConfig(n_gaussians=3000, triplane_resolution=32, triplane_channels=8)
     seed = sample_human_seed(body_model, None, cfg, seed=0)
     T = 3
-    return HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), [0, 2], cfg)
+    return HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), cfg)
 
 
 def test_seed_lies_on_the_canonical_surface_with_tangent_discs(body_model, small_human):
@@ -138,18 +138,22 @@ def test_gradients_flow_to_canonical_parameters_field_and_pose_refinements(small
     (posed.means.square().sum() + posed.colors.sum() + posed.scales.sum() + posed.opacities.sum()).backward()
     assert h.means.grad.abs().sum() > 0
     assert h.pose_delta.grad[0].abs().sum() > 0 and h.transl_delta.grad[0].abs().sum() > 0
-    assert h.pose_delta.grad[1].abs().sum() == 0  # only frame 0 was rendered
+    assert h.pose_delta.grad[1].abs().sum() == 0  # frame 0 is keyframe 0: the other key gets nothing
     assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in h.field.parameters())
 
 
-def test_held_out_frames_interpolate_neighbouring_refinements(small_human):
+def test_pose_corrections_interpolate_between_keyframes(small_human):
     h = small_human
+    assert h.pose_key_times.tolist() == [0.0, 2.0]  # 3 frames, keys 4 frames apart at most
     with torch.no_grad():
         h.pose_delta[0] = 0.1
-        h.pose_delta[2] = 0.3
+        h.pose_delta[1] = 0.3
     try:
-        pose, _ = h.frame_pose(1)  # frame 1 is held out (train = [0, 2])
-        torch.testing.assert_close(pose, torch.full_like(pose, 0.2))
+        pose, _ = h.frame_pose(1)  # halfway between the keys
+        major = [h.body.bone_index(b) for b in h.body.major_bones]
+        others = [j for j in range(h.body.n_bones) if j not in major]
+        torch.testing.assert_close(pose[0, major], torch.full((len(major), 3), 0.2))
+        assert torch.all(pose[0, others] == 0)  # only the major bones are refined
     finally:
         with torch.no_grad():
             h.pose_delta.zero_()
@@ -161,7 +165,7 @@ def test_visibility_scores_and_anchor_gradients(body_model):
     cfg = HumanConfig(n_gaussians=4000, triplane_resolution=16, triplane_channels=4, seed_opacity=0.95)
     seed = sample_human_seed(body_model, None, cfg, seed=1)
     T, W, H = 3, 64, 96
-    h = HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), [0, 1, 2], cfg)
+    h = HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), cfg)
     K = torch.tensor(intrinsics_from_fov(W, H, 60.0), dtype=torch.float32)
     # Anny faces -y: a camera on the -y side sees the front.
     w2c = torch.tensor(look_at([0.0, -3.0, 0.0], [0.0, 0.0, 0.0]), dtype=torch.float32).expand(T, 4, 4)

@@ -8,9 +8,7 @@ through `load_scene`, so they test the files a trainer gets.
 
 from __future__ import annotations
 
-import fcntl
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -28,20 +26,6 @@ from cogs.data.synth.textures import BOX_SIZE
 from cogs.data.validate import check_scene
 from cogs.geometry.camera import camera_center
 from cogs.geometry.rotations import axis_angle_to_rotmat, quat_geodesic_angle, rotmat_geodesic_angle
-
-
-@pytest.fixture(scope="session")
-def default_scene_dir(tmp_path_factory) -> Path:
-    # Under xdist each worker's basetemp sits in one folder per run: share that; a plain
-    # run uses its own basetemp (never a folder an older run could have left behind).
-    base = tmp_path_factory.getbasetemp()
-    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
-    root = shared / "synth_default"
-    with open(shared / "synth_default.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (root / "scene.json").exists():
-            save_scene(generate_scene(SynthConfig(), show_progress=False), root)
-    return root
 
 
 @pytest.fixture(scope="session")

@@ -30,6 +30,12 @@ log = logging.getLogger(__name__)
 
 N_BONES = 104
 SHAPE_NAMES = ["gender", "age", "muscle", "weight", "height", "proportions"]
+# The bones at SMPL's 24 joints, minus the toe and finger tips (whose rotation barely shows).
+MAJOR_BONES = [
+    "root", "upperleg01.L", "upperleg01.R", "lowerleg01.L", "lowerleg01.R", "foot.L", "foot.R",
+    "spine03", "spine02", "spine01", "neck01", "head", "shoulder01.L", "shoulder01.R",
+    "upperarm01.L", "upperarm01.R", "lowerarm01.L", "lowerarm01.R", "wrist.L", "wrist.R",
+]
 
 
 def _quiet_warp() -> None:
@@ -80,6 +86,10 @@ def anny_cache_ready() -> bool:
 
 class AnnyBody(BodyModel):
     name = "anny"
+
+    @property
+    def major_bones(self) -> list[str]:
+        return list(MAJOR_BONES)
 
     def __init__(self) -> None:
         super().__init__()

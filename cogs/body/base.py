@@ -34,6 +34,8 @@ class BodyModel(torch.nn.Module):
         name: registry name ("anny", "smpl", ...).
         bone_names: J labels; bone_parents: J parent indices (-1 for the root).
         shape_names: S labels of the shape vector; default_shape: [S].
+        major_bones: the bones whose rotations a pose estimator recovers (the SMPL-24
+            articulation); pose refinement acts on these only (default: every bone).
     """
 
     name: str
@@ -41,6 +43,10 @@ class BodyModel(torch.nn.Module):
     bone_parents: list[int]
     shape_names: list[str]
     default_shape: Tensor
+
+    @property
+    def major_bones(self) -> list[str]:
+        return list(self.bone_names)
 
     @property
     def n_bones(self) -> int:

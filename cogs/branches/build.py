@@ -15,7 +15,7 @@ from cogs.branches.object import ObjectBranch, ObjectConfig, carve_visual_hull, 
 from cogs.branches.scene import SceneBranch, SceneConfig
 from cogs.branches.splatback import splat_statistics
 from cogs.data.scene import Scene
-from cogs.geometry.rotations import quat_to_rotmat
+from cogs.geometry.rotations import quat_to_rotmat, rotmat_from_two_vectors, rotmat_to_quat
 from cogs.geometry.splines import sample_trajectory
 
 log = logging.getLogger(__name__)
@@ -61,8 +61,7 @@ def build_human(scene: Scene, cfg: BranchesConfig, backend: str = "auto", seed: 
         seed = sample_human_seed(body, shape, cfg.human, seed=cfg.seed)
     human = HumanBranch(
         body, shape, seed,
-        torch.as_tensor(scene.body.pose), torch.as_tensor(scene.body.transl),
-        scene.split["train"], cfg.human,
+        torch.as_tensor(scene.body.pose), torch.as_tensor(scene.body.transl), cfg.human,
     )
     images = torch.as_tensor(scene.images).float() / 255.0
     frames = _frames_for_color(scene.split["train"], cfg.color_init_frames)
@@ -99,7 +98,7 @@ def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto") -> Ob
     R = quat_to_rotmat(qs).numpy()
     centre = np.asarray(scene.object.centre, dtype=np.float64)
     train = scene.split["train"]
-    pts, voxel = carve_visual_hull(
+    pts, normals, voxel = carve_visual_hull(
         scene.object_masks, scene.human_masks, scene.cameras.K, scene.cameras.world_to_camera,
         tr.numpy(), R, centre, train, ocfg,
     )
@@ -107,14 +106,19 @@ def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto") -> Ob
     if len(pts) == 0:
         log.warning("object: the visual hull is empty (masks and initial poses disagree); starting from a small sphere")
         d = rng.normal(size=(2000, 3))
-        pts = centre + 0.05 * d / np.linalg.norm(d, axis=1, keepdims=True)
+        normals = d / np.linalg.norm(d, axis=1, keepdims=True)
+        pts = centre + 0.05 * normals
         voxel = 0.01
     if len(pts) > ocfg.max_gaussians:
-        pts = pts[rng.choice(len(pts), ocfg.max_gaussians, replace=False)]
+        keep = rng.choice(len(pts), ocfg.max_gaussians, replace=False)
+        pts, normals = pts[keep], normals[keep]
     pts = pts + rng.uniform(-0.25, 0.25, pts.shape) * voxel
     xyz = torch.as_tensor(pts, dtype=torch.float32)
-    g = GaussianSet.from_points(xyz, torch.full_like(xyz, 0.5), torch.full((len(xyz),), 0.6 * voxel),
-                                opacity=ocfg.init_opacity, sh_degree=ocfg.sh_degree)
+    n = torch.as_tensor(normals, dtype=torch.float32)
+    quats = rotmat_to_quat(rotmat_from_two_vectors(torch.tensor([0.0, 0.0, 1.0]).expand_as(n), n))
+    scales = torch.tensor([0.7, 0.7, 0.25]) * voxel
+    g = GaussianSet.from_points(xyz, torch.full_like(xyz, 0.5), scales.expand(len(xyz), 3).clone(),
+                                opacity=ocfg.init_opacity, quats=quats, sh_degree=ocfg.sh_degree)
     obj = ObjectBranch(g, torch.as_tensor(centre), key_times, p, v, q, prior_t, prior_q, ocfg)
 
     images = torch.as_tensor(scene.images).float() / 255.0

@@ -19,6 +19,7 @@ from cogs.branches.gaussians import GaussianSet
 from cogs.branches.human import HumanBranch, HumanState
 from cogs.branches.object import ObjectBranch
 from cogs.branches.scene import SceneBranch
+from cogs.geometry.rotations import quat_to_rotmat
 from cogs.render import RenderOutput, rasterize
 from cogs.render.sh import sh_to_color
 
@@ -86,12 +87,11 @@ class Compositor:
         g = o.gaussians
         # View-dependent colour is defined in the object's own frame: rotate the view ray back.
         if g.sh_degree > 0:
-            from cogs.geometry.rotations import quat_to_rotmat
-
-            R = quat_to_rotmat(quat)
-            rgb = sh_to_color(g.sh_degree, (means - campos) @ R, g.sh)
+            rgb = sh_to_color(g.sh_degree, (means - campos) @ quat_to_rotmat(quat), g.sh)
         else:
             rgb = g.rgb
+        if o.cfg.shading:
+            rgb = rgb * o.shading(quat_to_rotmat(quats)[:, :, 2])
         return Splats(means, quats, g.scales, g.opacities, rgb)
 
     def scene_splats(self, campos: Tensor) -> Splats:

@@ -26,12 +26,14 @@ from torch import Tensor
 
 from cogs.body import BodyModel, lbs_gaussians
 from cogs.branches.gaussians import inverse_sigmoid
+from cogs.branches.shading import Irradiance
 from cogs.geometry.rotations import (
     axis_angle_to_quat,
     quat_geodesic_angle,
     quat_multiply,
     quat_normalize,
     rotmat_from_two_vectors,
+    quat_to_rotmat,
     rotmat_to_quat,
 )
 
@@ -59,8 +61,14 @@ class HumanConfig:
     per_gaussian_color: bool = True
     """Add a free per-Gaussian colour residual to the field's colour (sharper texture for
     the same triplane resolution; the field alone is the HUGS formulation)."""
+    shading: bool = True
+    """Albedo x irradiance of the posed normal (light fixed in the world; see shading.py)."""
     refine_pose: bool = True
-    """Learn per-frame corrections of the input body pose and translation."""
+    """Learn corrections of the input body pose and translation."""
+    pose_keyframe_every: float = 4.0
+    """The corrections are a smooth function of time: linear between keyframes this many
+    frames apart. Every training view then updates the correction of its neighbours too,
+    and held-out frames get the interpolated correction without ever being fitted."""
     visibility_epsilon: float = 0.01
     """chi_it needs the Gaussian's summed compositing weight inside the human mask (in
     pixel units) above this."""
@@ -179,7 +187,6 @@ class HumanBranch(torch.nn.Module):
         seed: HumanSeed,
         base_pose: Tensor,  # [T, J, 3] input poses
         base_transl: Tensor,  # [T, 3]
-        train_frames: list[int],
         cfg: HumanConfig,
     ):
         super().__init__()
@@ -197,16 +204,18 @@ class HumanBranch(torch.nn.Module):
         self.register_buffer("seed_colors", seed.colors.clone())
         self.register_buffer("seed_weights", seed.weights.clone())
         self.register_buffer("visibility", torch.zeros(len(seed.means)))
+        self.shading = Irradiance()
         pad = cfg.triplane_padding_m
         self.field = TriplaneField(seed.means.min(0).values - pad, seed.means.max(0).values + pad, body.n_bones, cfg)
         T = base_pose.shape[0]
         self.register_buffer("base_pose", base_pose.float().clone())
         self.register_buffer("base_transl", base_transl.float().clone())
-        self.pose_delta = torch.nn.Parameter(torch.zeros(T, body.n_bones, 3))
-        self.transl_delta = torch.nn.Parameter(torch.zeros(T, 3))
-        mask = torch.zeros(T, dtype=torch.bool)
-        mask[list(train_frames)] = True
-        self.register_buffer("train_mask", mask)
+        K = max(2, int(np.ceil((T - 1) / cfg.pose_keyframe_every)) + 1)
+        self.register_buffer("pose_key_times", torch.linspace(0.0, float(T - 1), K))
+        major = torch.tensor([body.bone_index(b) for b in body.major_bones])
+        self.register_buffer("refined_bones", major)
+        self.pose_delta = torch.nn.Parameter(torch.zeros(K, len(major), 3))
+        self.transl_delta = torch.nn.Parameter(torch.zeros(K, 3))
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -225,31 +234,25 @@ class HumanBranch(torch.nn.Module):
         return HumanState(self.means, quats, scales, opacities, colors.clamp(0.0, 1.0), weights)
 
     # -- pose --------------------------------------------------------------------------
-    def frame_pose(self, t: int) -> tuple[Tensor, Tensor]:
-        """Body pose [1, J, 3] and translation [1, 3] for frame t, refinements included.
+    def frame_pose(self, t: float) -> tuple[Tensor, Tensor]:
+        """Body pose [1, J, 3] and translation [1, 3] at frame t, corrections included.
 
-        Held-out frames have no refinement of their own: they take the linear
-        interpolation of the nearest training frames' refinements (so smooth input noise
-        learned on neighbours carries over, and no test image is ever fitted).
+        The correction is interpolated between pose keyframes, so a held-out frame gets
+        the correction its training neighbours taught, and no test image is ever fitted.
         """
         if not self.cfg.refine_pose:
             return self.base_pose[t : t + 1], self.base_transl[t : t + 1]
-        dp, dt = self._refinement(t)
-        return self.base_pose[t : t + 1] + dp, self.base_transl[t : t + 1] + dt
+        dp, dt = self._refinement(float(t))
+        pose = self.base_pose[t : t + 1].index_add(1, self.refined_bones, dp)
+        return pose, self.base_transl[t : t + 1] + dt
 
-    def _refinement(self, t: int) -> tuple[Tensor, Tensor]:
-        if bool(self.train_mask[t]):
-            return self.pose_delta[t : t + 1], self.transl_delta[t : t + 1]
-        train = torch.nonzero(self.train_mask).flatten()
-        before, after = train[train < t], train[train > t]
-        if len(before) == 0 or len(after) == 0:
-            j = int(after[0] if len(before) == 0 else before[-1])
-            return self.pose_delta[j : j + 1], self.transl_delta[j : j + 1]
-        a, b = int(before[-1]), int(after[0])
-        u = (t - a) / (b - a)
+    def _refinement(self, t: float) -> tuple[Tensor, Tensor]:
+        times = self.pose_key_times
+        k = int(torch.searchsorted(times, torch.tensor(t), right=True).clamp(1, len(times) - 1)) - 1
+        u = min(max((t - float(times[k])) / float(times[k + 1] - times[k]), 0.0), 1.0)
         return (
-            (1 - u) * self.pose_delta[a : a + 1] + u * self.pose_delta[b : b + 1],
-            (1 - u) * self.transl_delta[a : a + 1] + u * self.transl_delta[b : b + 1],
+            (1 - u) * self.pose_delta[k : k + 1] + u * self.pose_delta[k + 1 : k + 2],
+            (1 - u) * self.transl_delta[k : k + 1] + u * self.transl_delta[k + 1 : k + 2],
         )
 
     def posed(self, pose: Tensor, transl: Tensor, state: HumanState | None = None) -> HumanState:
@@ -257,7 +260,10 @@ class HumanBranch(torch.nn.Module):
         state = self.decode() if state is None else state
         A, _ = self.body.bone_transforms(pose, transl, self.shape)
         means, quats = lbs_gaussians(state.means, state.quats, state.weights, A[0])
-        return HumanState(means, quats, state.scales, state.opacities, state.colors, state.weights)
+        colors = state.colors
+        if self.cfg.shading:
+            colors = colors * self.shading(quat_to_rotmat(quats)[:, :, 2])  # seed discs: local z = normal
+        return HumanState(means, quats, state.scales, state.opacities, colors, state.weights)
 
     def posed_frame(self, t: int, state: HumanState | None = None) -> HumanState:
         pose, transl = self.frame_pose(t)
@@ -280,11 +286,9 @@ class HumanBranch(torch.nn.Module):
         return (w * term).mean()
 
     def pose_regularizer(self) -> Tensor:
-        """Keep refinements small and temporally smooth (mean squared)."""
-        d = self.pose_delta[self.train_mask]
-        tr = self.transl_delta[self.train_mask]
-        smooth = (d[1:] - d[:-1]).square().mean() + (tr[1:] - tr[:-1]).square().mean() if len(d) > 1 else d.sum() * 0
-        return d.square().mean() + tr.square().mean() + smooth
+        """Keep the corrections small: squared angle per bone summed over the bones, and the
+        squared translation (metres), averaged over keyframes."""
+        return self.pose_delta.square().sum((1, 2)).mean() + self.transl_delta.square().sum(1).mean()
 
 
 def visibility_indicator(

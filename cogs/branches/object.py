@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from cogs.branches.gaussians import GaussianSet
+from cogs.branches.shading import Irradiance
 from cogs.geometry.rotations import quat_geodesic_angle, quat_multiply, quat_normalize, quat_to_rotmat
 from cogs.geometry.splines import (
     acceleration_penalty,
@@ -37,7 +38,7 @@ log = logging.getLogger(__name__)
 class ObjectConfig:
     """Object-branch hyper-parameters."""
 
-    frames_per_keyframe: float = 5.0
+    frames_per_keyframe: float = 3.0
     """Keyframe spacing in frames (K = ceil(T / spacing) + 1)."""
     hull_resolution: int = 40
     """Voxels per side of the carving cube."""
@@ -50,6 +51,9 @@ class ObjectConfig:
     max_gaussians: int = 8000
     init_opacity: float = 0.6
     sh_degree: int = 0
+    shading: bool = True
+    """Albedo x irradiance of the posed normal (see shading.py): the object turns under
+    world-fixed light. Gaussians start as discs tangent to the hull, so they have normals."""
 
 
 class ObjectBranch(torch.nn.Module):
@@ -75,6 +79,7 @@ class ObjectBranch(torch.nn.Module):
         self.key_q = torch.nn.Parameter(q.float().clone())
         self.register_buffer("prior_t", prior_t.float().clone())
         self.register_buffer("prior_q", quat_normalize(prior_q.float()).clone())
+        self.shading = Irradiance()
 
     def __len__(self) -> int:
         return len(self.gaussians)
@@ -114,7 +119,8 @@ class ObjectBranch(torch.nn.Module):
         """(acceleration, rotation smoothness) of the trajectory sampled every frame/substeps."""
         tau = torch.arange(0, (self.n_frames - 1) * substeps + 1, dtype=torch.float32) / substeps
         tr, q = self.pose(tau)
-        return acceleration_penalty(tr), rotation_smoothness(q)
+        # Angular acceleration, not speed: a steady spin in the hand costs nothing.
+        return acceleration_penalty(tr), rotation_smoothness(q, order=2)
 
 
 def fit_initial_trajectory(prior_t: Tensor, prior_q: Tensor, cfg: ObjectConfig) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -123,7 +129,11 @@ def fit_initial_trajectory(prior_t: Tensor, prior_q: Tensor, cfg: ObjectConfig) 
     frame_times = torch.arange(T, dtype=torch.float64)
     K = max(2, int(np.ceil((T - 1) / cfg.frames_per_keyframe)) + 1)
     key_times = uniform_keyframe_times(frame_times, K)
-    p, v, q = fit_keyframes(frame_times, prior_t.double(), prior_q.double(), keyframe_times=key_times)
+    # No rotation smoothing in the fit: a handled object can spin by 20 degrees a frame, and
+    # the smoothing term flattens such turns (tens of degrees of error); the keyframe spacing
+    # already removes per-frame jitter.
+    p, v, q = fit_keyframes(frame_times, prior_t.double(), prior_q.double(), keyframe_times=key_times,
+                            rotation_smoothing=0.0)
     return key_times, p, v, q
 
 
@@ -146,12 +156,13 @@ def carve_visual_hull(
     centre: np.ndarray,  # [3] canonical pivot
     frames: list[int],
     cfg: ObjectConfig,
-) -> tuple[np.ndarray, float]:
-    """Canonical surface points [M, 3] of the voted visual hull, and the voxel size."""
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Canonical surface points [M, 3] of the voted visual hull, their outward normals
+    [M, 3] (gradient of the smoothed occupancy), and the voxel size."""
     T, H, W = object_masks.shape
     used = [t for t in frames if object_masks[t].any()]
     if not used:
-        return np.zeros((0, 3)), 0.0
+        return np.zeros((0, 3)), np.zeros((0, 3)), 0.0
     # Apparent size -> metric radius, per frame, from the mask's bounding box and depth.
     radii = []
     for t in used:
@@ -182,8 +193,13 @@ def carve_visual_hull(
     keep = (decided >= 2) & (inside >= cfg.hull_keep_fraction * decided)
     vox = keep.reshape(n, n, n)
     if not vox.any():
-        return np.zeros((0, 3)), 2 * half / n
+        return np.zeros((0, 3)), np.zeros((0, 3)), 2 * half / n
     pad = np.pad(vox, 1)
     interior = pad[2:, 1:-1, 1:-1] & pad[:-2, 1:-1, 1:-1] & pad[1:-1, 2:, 1:-1] & pad[1:-1, :-2, 1:-1] & pad[1:-1, 1:-1, 2:] & pad[1:-1, 1:-1, :-2]
     surface = (vox & ~interior).reshape(-1)
-    return grid[surface], 2 * half / n
+    from scipy.ndimage import gaussian_filter
+
+    occ = gaussian_filter(vox.astype(np.float64), 1.0)
+    grad = np.stack(np.gradient(occ), axis=-1).reshape(-1, 3)[surface]
+    normals = -grad / np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-9)
+    return grid[surface], normals, 2 * half / n

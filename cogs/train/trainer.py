@@ -154,6 +154,7 @@ class Trainer:
             {"params": [h.means], "lr": lr.human_means, "name": "means"},
             {"params": [h.color_residual], "lr": lr.human_color, "name": "color"},
             {"params": list(h.field.parameters()), "lr": lr.human_field, "name": "field"},
+            {"params": list(h.shading.parameters()), "lr": lr.shading, "name": "shading"},
         ]
         if h.cfg.refine_pose:
             groups += [
@@ -178,6 +179,7 @@ class Trainer:
 
     def _object_optimizer(self, motion: bool) -> torch.optim.Optimizer:
         opt = self._set_optimizer(self.object.gaussians, "object", 1.0)
+        opt.add_param_group({"params": list(self.object.shading.parameters()), "lr": self.cfg.lr.shading, "name": "shading"})
         if motion:
             self._add_motion(opt)
         return opt
@@ -300,7 +302,9 @@ class Trainer:
         loss = w.object_rgb * L.photometric(out.rgb, target, w.l1, w.dssim)
         terms["rgb"] = _val(loss)
         ao = out.branch_alpha["object"]
-        sil = w.object_bce * L.bce(ao, om) + w.object_dice * L.dice(ao, om)
+        # Dice is unstable on a nearly hidden object (a handful of mask pixels): fade it in.
+        dice_w = min(1.0, float(om.sum()) / 200.0)
+        sil = w.object_bce * L.bce(ao, om) + w.object_dice * dice_w * L.dice(ao, om)
         terms["silhouette"] = _val(sil)
         loss = loss + sil
         if polish:
@@ -365,6 +369,10 @@ class Trainer:
                     self.state.step += 1
                     self.state.stage_seconds[name] = self.state.stage_seconds.get(name, 0.0) + time.perf_counter() - tic
                     bar.update(task, completed=self.state.step, rate=rate_text(self.state.step - t0, started), info=info)
+                    if not bar.console.is_terminal and (self.state.step % 25 == 0 or self.state.step == n):
+                        done = self.state.step - t0
+                        eta = (time.perf_counter() - started) / max(done, 1) * (n - self.state.step)
+                        log.info("stage %s %d/%d  %s  %s  eta %.0f s", name, self.state.step, n, rate_text(done, started).strip(), info, eta)
                     if self.state.step % self.cfg.checkpoint_every == 0 and self.state.step < n:
                         self._checkpoint()
                 self._end_stage(name)
@@ -582,7 +590,7 @@ def _bare_human(scene: Scene, cfg: TrainConfig, seed):
     if seed is None:
         seed = sample_human_seed(body, shape, cfg.branches.human, seed=cfg.branches.seed)
     return HumanBranch(body, shape, seed, torch.as_tensor(scene.body.pose), torch.as_tensor(scene.body.transl),
-                       scene.split["train"], cfg.branches.human)
+                       cfg.branches.human)
 
 
 def _random_human_seed(scene: Scene, cfg: TrainConfig):

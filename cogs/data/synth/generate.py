@@ -303,7 +303,7 @@ def generate_scene(config: SynthConfig | None = None, show_progress: bool = True
         object=ObjectTrack(centre=np.zeros(3), quats=continuous_quats(R_n), translations=t_n),
         points_xyz=xyz.astype(np.float32),
         points_rgb=rgb.astype(np.uint8),
-        planes=list(assets.room.planes),
+        planes=None,  # inputs carry none: the scene branch fits them to the noisy points (exact ones in gt/)
         gt=gt,
         source=source,
     )
