@@ -1,7 +1,11 @@
 """Accuracy of `cogs preprocess` against the synthetic scene's ground truth.
 
     python benchmarks/preprocess_accuracy.py [--frames 40] [--width 640] [--height 480]
-        [--scene DIR] [--work DIR] [--focal-prior]
+        [--seed 0] [--scene DIR] [--work DIR] [--focal-prior]
+
+``--seed`` changes only the synthetic scene's noisy pipeline-like inputs, which the
+command does not read (the rendered frames are the same); another ``--frames`` or size
+renders a different clip.
 
 1. Generates the synthetic benchmark scene (`cogs.data.synth`), or reads `--scene DIR`.
 2. Encodes its frames as an H.264 video (PyAV) and runs the preprocessing on it with a box
@@ -18,9 +22,12 @@
      true joints projected by the true cameras, for the bones mapped to MediaPipe
      landmarks, divided by the height of the true person mask's bounding box;
    - object trajectory error: the object's centre in camera coordinates (metres; no world
-     alignment needed, both are metric), its relative error to the true depth, and the
-     projected centre's pixel error; the rotation error of the object's motion relative to
-     the first frame (degrees, in the camera frame).
+     alignment needed, both are metric), its relative error to the true depth, the same
+     after removing the body fit's depth scale (the median ratio of true to predicted
+     camera depth of the body's root, reported as ``body_depth_scale``: the body sets the
+     predicted world's metric scale), and the projected centre's pixel error; the rotation
+     error of the object's motion relative to the first frame (degrees, in the camera frame);
+   - the object step's statistics (frames found, and per cue of the classical tracker).
 
 Prints a few human-readable lines, then one JSON object on the last line.
 """
@@ -209,9 +216,19 @@ def main(argv=None) -> int:
         rel_p = np.einsum("tij,kj->tik", Rp_c, Rp_c[0])  # R_t R_0^T
         rel_g = np.einsum("tij,kj->tik", Rg_c, Rg_c[0])
         vis = gt.object_masks.reshape(T, -1).any(1)
+        # The body fit sets the predicted world's metric scale; with it removed (the
+        # median ratio of true to predicted camera depth of the body's root), what is
+        # left is the object step's own error.
+        root = model.bone_index("root")
+        zp = np.einsum("tj,tj->t", wp[:, 2, :3], jp[:, root]) + wp[:, 2, 3]
+        zg = np.einsum("tj,tj->t", wg[:, 2, :3], jg[:, root]) + wg[:, 2, 3]
+        body_scale = float(np.median(zg / zp))
+        d_s = np.linalg.norm(body_scale * cpc - cgc, axis=1)
         obj = {
             "translation_m": _stats(d[vis]),
             "translation_rel_depth": _stats((d / np.abs(cgc[:, 2]))[vis]),
+            "body_depth_scale": body_scale,
+            "translation_rel_depth_body_scaled": _stats((d_s / np.abs(cgc[:, 2]))[vis]),
             "centre_px": _stats(np.array(px)[vis]),
             "relative_rotation_deg": _stats(_angle_deg(rel_p, rel_g)[vis]),
         }
@@ -229,6 +246,7 @@ def main(argv=None) -> int:
         "joint_2d_error_of_box_height": _stats(j_err),
         "object": obj,
         "body_reprojection_to_keypoints": report.stats.get("body", {}).get("reprojection_error_mean"),
+        "object_step": report.stats.get("objects"),
         "timings": timings,
         "targets": {
             "camera_rotation_deg<=2": bool(np.max(rot_err) <= 2.0),

@@ -28,6 +28,7 @@ from cogs.errors import UserError
 log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
+TRACKER_VERSION = 2  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 STEPS = ["frames", "persons", "objects", "cameras", "body", "object_pose", "planes", "scene"]
 
 
@@ -212,7 +213,8 @@ class _Runner:
                 raise UserError(f"no person detected in any of the {T} frames of {src}")
 
             has_object = cfg.object_box is not None or cfg.object_masks is not None
-            ob_params = {"box": cfg.object_box, "frame": cfg.object_box_frame, "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint)}
+            ob_params = {"box": cfg.object_box, "frame": cfg.object_box_frame, "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint),
+                         "tracker": TRACKER_VERSION}
             if has_object:
                 ob, _ = self._step(ui, 3, "objects", ob_params, ["frames", "persons"], lambda lb: self._objects(lb, ui, images, pe))
                 obj_masks = ob["masks"].astype(bool)
@@ -310,6 +312,7 @@ class _Runner:
         cfg = self.cfg
         T, H, W, _ = images.shape
         update = ui.task(label, T)
+        cues: list[str] = []
         if cfg.object_masks is not None:
             masks = O.read_mask_folder(cfg.object_masks, T, (W, H), self.source_indices)
             conf = masks.reshape(T, -1).any(1).astype(np.float64)
@@ -323,12 +326,15 @@ class _Runner:
                 conf = masks.reshape(T, -1).any(1).astype(np.float64)
             else:
                 prompt = O.grabcut_box(images[k], box)
-                masks, conf = O.propagate_masks(images, prompt, k, human_probs=pe["probs"], kp2d=pe["kp2d"], on_frame=lambda n: update(n))
+                masks, conf = O.propagate_masks(images, prompt, k, human_probs=pe["probs"], kp2d=pe["kp2d"], cues=cues, on_frame=lambda n: update(n))
         if not masks.any():
             raise UserError("the object masks are empty in every frame (check --object-box / --object-masks)")
         n = int(masks.reshape(T, -1).any(1).sum())
         lost = [i for i in range(T) if not masks[i].any()]
-        return {"masks": masks, "confidence": conf}, {"summary": f"object in {n}/{T} frames", "stats": {"frames_with_object": n, "empty_frames": lost}}
+        stats = {"frames_with_object": n, "empty_frames": lost}
+        if cues:  # which cue of the classical tracker found each frame
+            stats["cues"] = {c: cues.count(c) for c in sorted(set(cues)) if c}
+        return {"masks": masks, "confidence": conf}, {"summary": f"object in {n}/{T} frames", "stats": stats}
 
     def _cameras(self, label, ui, images, person_masks, obj_masks, K):
         from cogs.preprocess import sfm as S

@@ -1,0 +1,764 @@
+"""The classical object tracker: one prompt mask -> a mask in every frame, no learned weights.
+
+``propagate_masks`` walks away from the prompt frame in both directions. Each frame takes
+the first of three cues that holds (``_Tracker._step``):
+
+1. **motion**: the object's last extent is placed where it was, where SIFT matches from
+   remembered views carry it (``FeatureBank``), where dense optical flow carries it
+   (``warp_mask_by_flow``), and, for an object carried by a hand, where the hand takes it
+   (``move_with_hand``). Each placement is fitted rigidly (``align_mask``) to this frame's
+   probability under a colour model of the object against its own surroundings in the
+   last frame; the best fit wins if it fits well and still looks like the object. GrabCut
+   then fits its outline to this frame (``segment.grabcut_from_seed``), and the hands'
+   pixels (``hand_regions``) are taken out of the visible mask;
+2. **colour**: the object-sized window with the best mean object probability over the
+   whole frame (``locate``), weighted towards the motion prediction and the hands, then
+   GrabCut seeded there (a fast or reappearing object: a bounced ball);
+3. **hand**: an object seen carried by a hand is segmented next to that hand, off the
+   person (``segment.grabcut_at_hand``), for a few frames after it was lost: a handled
+   object that turns shows faces no colour model has seen. Such a find is tentative
+   until the next frame sees it move with the hand.
+
+Otherwise the object is hidden and the frame's mask is empty. Then every run of empty
+frames that ends where the object was found again is tracked back into from there.
+
+Hands matter throughout: a handled object is always next to one, the fingers cover it, and
+a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
+(wrist, pinky, index and thumb points of each hand).
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cogs.errors import UserError
+from cogs.preprocess.segment import (
+    ColourModel,
+    fill_holes,
+    grabcut_at,
+    grabcut_at_hand,
+    grabcut_from_seed,
+    iou,
+    largest_component_near,
+    mask_stats,
+    solidity,
+    window,
+)
+
+log = logging.getLogger(__name__)
+
+# MediaPipe pose landmarks of each hand (left, right): elbow, wrist, pinky, index, thumb.
+_HAND_LANDMARKS = ((13, 15, 17, 19, 21), (14, 16, 18, 20, 22))
+
+
+# -- motion cues ----------------------------------------------------------------------
+
+
+def warp_mask_by_flow(prev_rgb: np.ndarray, rgb: np.ndarray, prev_mask: np.ndarray, margin: float = 1.5) -> np.ndarray:
+    """The previous frame's mask carried into this frame by dense optical flow, computed in a
+    window around the mask -> [H, W] bool (empty when nothing lands).
+
+    DIS flow (OpenCV's dense inverse search): its coarse-to-fine patch search follows a
+    fast object much further than Farneback's polynomial expansion (on the synthetic
+    benchmark, a gently moving box: IoU 0.98 against 0.42 while the camera pans).
+    """
+    import cv2
+
+    H, W = prev_mask.shape
+    if not prev_mask.any():
+        return np.zeros((H, W), bool)
+    x0, y0, x1, y1 = window(prev_mask, margin)
+    a = cv2.cvtColor(np.ascontiguousarray(rgb[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)
+    b = cv2.cvtColor(np.ascontiguousarray(prev_rgb[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)
+    # Flow from this frame to the previous one: where each pixel here came from.
+    flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(a, b, None)
+    gy, gx = np.mgrid[0 : y1 - y0, 0 : x1 - x0].astype(np.float32)
+    pm = prev_mask[y0:y1, x0:x1].astype(np.float32)
+    warped = cv2.remap(pm, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR, borderValue=0.0)
+    out = np.zeros((H, W), bool)
+    out[y0:y1, x0:x1] = warped > 0.5
+    return out
+
+
+def align_mask(mask: np.ndarray, prob: np.ndarray, margin: float = 1.0) -> tuple[np.ndarray | None, float]:
+    """Move a mask rigidly (rotation and translation) onto where a probability map puts
+    the object -> (moved mask [H, W] bool, or None when the fit fails; correlation).
+
+    ECC (``cv2.findTransformECC``) maximises the correlation between the blurred mask and
+    the blurred map in a window around the mask, starting where the mask is: a template
+    fit that keeps the object's shape and lets its whole outline vote, so a few
+    look-alike pixels nearby or a few missing ones (a new face, a finger) move it
+    little. The correlation (at most 1) says how well the shape explains the map.
+    """
+    import cv2
+
+    H, W = mask.shape
+    _, s = mask_stats(mask)
+    x0, y0, x1, y1 = window(mask, margin)
+    sigma = max(2.0, 0.06 * float(s.max()))
+    tmpl = cv2.GaussianBlur(mask[y0:y1, x0:x1].astype(np.float32), (0, 0), sigma)
+    img = cv2.GaussianBlur(prob[y0:y1, x0:x1].astype(np.float32), (0, 0), 0.7 * sigma)
+    warp = np.eye(2, 3, dtype=np.float32)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-5)
+    try:
+        cc, warp = cv2.findTransformECC(tmpl, img, warp, cv2.MOTION_EUCLIDEAN, criteria, None, 5)
+    except cv2.error:
+        return None, 0.0  # no convergence
+    if not np.isfinite(cc):
+        return None, 0.0  # a flat map (ECC divides by its spread): nothing object-like there
+    A = warp.astype(np.float64)
+    A[:, 2] += np.array([x0, y0]) - A[:, :2] @ np.array([x0, y0])  # window -> frame pixels
+    moved = cv2.warpAffine(mask.astype(np.uint8), A, (W, H), flags=cv2.INTER_NEAREST) > 0
+    return moved, float(cc)
+
+
+@dataclass
+class _View:
+    """The object's SIFT keypoints in one frame where its mask is known."""
+
+    t: int
+    xy: np.ndarray  # [N, 2] pixels
+    desc: np.ndarray  # [N, 128] float32
+    mask: np.ndarray  # [H, W] bool
+
+
+class FeatureBank:
+    """Re-detection by local features: SIFT keypoints of the object in remembered views
+    (the prompt's, pinned, and the last ``recent`` frames found), matched into a new
+    frame and verified by a RANSAC similarity transform.
+
+    Unlike flow it follows a large jump (a fast lift) and finds the object again after an
+    occlusion, as long as a face seen before is in view; unlike a colour model it
+    ignores look-alike colours elsewhere, since the matches must agree on one rigid
+    motion. Keypoints of whole frames are computed once and kept.
+    """
+
+    def __init__(self, images: np.ndarray, recent: int = 4, min_inliers: int = 5):
+        import cv2
+
+        self.images = images
+        # A low contrast threshold: small, smooth or blurred objects still get keypoints.
+        self.sift = cv2.SIFT_create(contrastThreshold=0.02)
+        self.matcher = cv2.BFMatcher(cv2.NORM_L2)
+        self.frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.pinned: _View | None = None
+        self.recent: list[_View] = []
+        self.n_recent = recent
+        self.min_inliers = min_inliers
+
+    def _frame(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        if t not in self.frames:
+            import cv2
+
+            kps, desc = self.sift.detectAndCompute(cv2.cvtColor(self.images[t], cv2.COLOR_RGB2GRAY), None)
+            xy = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+            self.frames[t] = (xy, np.zeros((0, 128), np.float32) if desc is None else desc)
+        return self.frames[t]
+
+    def _pairs(self, d_from: np.ndarray, d_to: np.ndarray) -> list:
+        if len(d_from) < 2 or len(d_to) < 2:
+            return []
+        return [m[0] for m in self.matcher.knnMatch(d_from, d_to, k=2) if len(m) == 2 and m[0].distance < 0.8 * m[1].distance]
+
+    def view(self, t: int, mask: np.ndarray) -> _View:
+        xy, desc = self._frame(t)
+        H, W = mask.shape
+        inside = mask[np.clip(xy[:, 1].astype(int), 0, H - 1), np.clip(xy[:, 0].astype(int), 0, W - 1)]
+        return _View(t, xy[inside], desc[inside], mask)
+
+    def pin(self, t: int, mask: np.ndarray) -> None:
+        self.pinned = self.view(t, mask)
+
+    def add(self, t: int, mask: np.ndarray) -> None:
+        self.recent = [v for v in self.recent if v.t != t][-(self.n_recent - 1) :] + [self.view(t, mask)]
+
+    def forget(self, keep) -> None:
+        """Drop the recent views whose frame ``keep(t)`` rejects."""
+        self.recent = [v for v in self.recent if keep(v.t)]
+
+    def match(self, t: int) -> tuple[np.ndarray, int] | None:
+        """(a remembered view's mask carried into frame t, inlier count) for the view with
+        the most inliers, or None when no view matches."""
+        import cv2
+
+        xy, desc = self._frame(t)
+        best = None
+        views = self.recent[::-1]
+        if self.pinned is not None and all(v.t != self.pinned.t for v in views):
+            views.append(self.pinned)
+        for v in views:
+            pairs = self._pairs(v.desc, desc)
+            if len(pairs) < self.min_inliers:
+                continue
+            src = v.xy[[m.queryIdx for m in pairs]]
+            dst = xy[[m.trainIdx for m in pairs]]
+            _, s = mask_stats(v.mask)
+            A, inl = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=max(3.0, 0.05 * float(s.max())))
+            if A is None:
+                continue
+            n = int(inl.sum())
+            scale = float(np.sqrt(abs(np.linalg.det(A[:, :2]))))
+            # A view further back in time may differ more in size than the last one.
+            lo, hi = (0.5, 2.0) if abs(v.t - t) > 2 else (0.67, 1.5)
+            if n < self.min_inliers or not lo <= scale <= hi:
+                continue
+            # The inliers must span the object, not sit on one spot (a repeated texture).
+            if float(np.ptp(src[inl.ravel().astype(bool)], axis=0).max()) < 0.25 * float(s.max()):
+                continue
+            if best is None or n > best[2]:
+                best = (v, A, n)
+        if best is None:
+            return None
+        v, A, n = best
+        H, W = v.mask.shape
+        warped = cv2.warpAffine(v.mask.astype(np.uint8), A, (W, H), flags=cv2.INTER_NEAREST) > 0
+        if warped.sum() < 0.5 * v.mask.sum():
+            return None  # mostly outside the frame
+        return warped, n
+
+    def background_motion(self, t0: int, t1: int, static0: np.ndarray) -> np.ndarray | None:
+        """[3, 3] homography taking frame t0's pixels where ``static0`` (no person, no
+        object) to frame t1's, from matched keypoints; None when too few match."""
+        import cv2
+
+        xy0, d0 = self._frame(t0)
+        xy1, d1 = self._frame(t1)
+        H, W = static0.shape
+        keep = static0[np.clip(xy0[:, 1].astype(int), 0, H - 1), np.clip(xy0[:, 0].astype(int), 0, W - 1)]
+        pairs = self._pairs(d0[keep], d1)
+        if len(pairs) < 8:
+            return None
+        src = xy0[keep][[m.queryIdx for m in pairs]]
+        dst = xy1[[m.trainIdx for m in pairs]]
+        Hm, inl = cv2.findHomography(src, dst, cv2.RANSAC, 3.0)
+        return Hm if Hm is not None and inl.sum() >= 8 else None
+
+
+# -- hands ----------------------------------------------------------------------------
+
+
+def hand_points(kp2d: np.ndarray | None) -> np.ndarray | None:
+    """[T, 2, 3] per hand (left, right): mean pixel of wrist, pinky and index points, and
+    the lowest of their visibilities; None without keypoints."""
+    if kp2d is None:
+        return None
+    out = np.full((len(kp2d), 2, 3), np.nan)
+    for h, (_, wrist, pinky, index, _) in enumerate(_HAND_LANDMARKS):
+        k = kp2d[:, [wrist, pinky, index]]
+        out[:, h, :2] = k[..., :2].mean(1)
+        out[:, h, 2] = k[..., 2].min(1)
+    return out
+
+
+def hand_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float = 0.5) -> np.ndarray:
+    """Pixels the visible hands may cover -> [H, W] bool, from one frame's MediaPipe
+    keypoints [33, 3] (x, y, visibility).
+
+    A hand is the convex hull of its wrist, pinky, index and thumb points and the finger
+    tips, taken one palm length (wrist to knuckles) past the knuckles, grown by a
+    quarter of the palm length (the fingers' width).
+    """
+    import cv2
+
+    H, W = shape
+    out = np.zeros((H, W), bool)
+    for _, wrist, pinky, index, thumb in _HAND_LANDMARKS:
+        k = kp[[wrist, pinky, index, thumb]]
+        if not np.isfinite(k).all() or k[:, 2].min() < min_visibility:
+            continue
+        w, p, i, th = k[:, :2].astype(np.float64)
+        palm = float(np.linalg.norm(0.5 * (p + i) - w))
+        if palm < 1.0:
+            continue
+        hull = cv2.convexHull(np.array([w, p, i, th, 2 * p - w, 2 * i - w], np.float32).reshape(-1, 1, 2))
+        one = np.zeros((H, W), np.uint8)
+        cv2.fillConvexPoly(one, np.round(hull).astype(np.int32), 1)
+        grow = max(1, int(round(0.25 * palm)))
+        out |= cv2.dilate(one, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)) > 0
+    return out
+
+
+def _visible(hands: np.ndarray | None, t: int, h: int | None) -> bool:
+    return hands is not None and h is not None and bool(np.isfinite(hands[t, h]).all()) and hands[t, h, 2] >= 0.5
+
+
+def _distance_to(mask: np.ndarray, point: np.ndarray) -> float:
+    """Pixels from ``point`` (x, y) to the nearest mask pixel (0 inside)."""
+    import cv2
+
+    x0, y0, x1, y1 = window(mask, 0.5)
+    xi, yi = int(round(point[0])) - x0, int(round(point[1])) - y0
+    if not (0 <= xi < x1 - x0 and 0 <= yi < y1 - y0):
+        return np.inf
+    return float(cv2.distanceTransform((~mask[y0:y1, x0:x1]).astype(np.uint8), cv2.DIST_L2, 3)[yi, xi])
+
+
+def carrying_hand(hands: np.ndarray | None, t0: int, t1: int, m0: np.ndarray, m1: np.ndarray,
+                  touch: float = 0.3, moved_max: float = 1 / 3) -> int | None:
+    """The hand (0 left, 1 right) that carries the object from frame t0 (mask ``m0``) to
+    frame t1 (``m1``), or None.
+
+    A hand carries the object when it touches the mask in both frames (within ``touch``
+    x the object's size) and the object moved with it (the two displacements differ by
+    less than ``moved_max`` x its size). A bounced ball touches the hand but moves on
+    its own.
+    """
+    if hands is None:
+        return None
+    c0, _ = mask_stats(m0)
+    c1, s1 = mask_stats(m1)
+    size = float(max(s1.max(), 1.0))
+    best, best_d = None, np.inf
+    for h in range(2):
+        if not (_visible(hands, t0, h) and _visible(hands, t1, h)):
+            continue
+        d = max(_distance_to(m0, hands[t0, h, :2]), _distance_to(m1, hands[t1, h, :2]))
+        moved = np.linalg.norm((c1 - c0) - (hands[t1, h, :2] - hands[t0, h, :2]))
+        if d <= touch * size and moved <= moved_max * size and d < best_d:
+            best, best_d = h, d
+    return best
+
+
+def move_with_hand(mask: np.ndarray, kp0: np.ndarray, kp1: np.ndarray, hand: int) -> np.ndarray:
+    """A mask carried by a hand from one frame (keypoints ``kp0`` [33, 3]) to the next
+    (``kp1``): turned with the forearm (elbow to hand) and moved with the hand -> [H, W] bool."""
+    import cv2
+
+    elbow, wrist, pinky, index, _ = _HAND_LANDMARKS[hand]
+    a, b = kp0[[elbow, wrist, pinky, index], :2].astype(np.float64), kp1[[elbow, wrist, pinky, index], :2].astype(np.float64)
+    pa, pb = a[1:].mean(0), b[1:].mean(0)
+    va, vb = pa - a[0], pb - b[0]
+    ang = np.arctan2(vb[1], vb[0]) - np.arctan2(va[1], va[0])
+    sc = float(np.clip(np.linalg.norm(vb) / max(np.linalg.norm(va), 1e-6), 0.8, 1.25))
+    R = sc * np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+    A = np.concatenate([R, (pb - R @ pa)[:, None]], 1)
+    H, W = mask.shape
+    return cv2.warpAffine(mask.astype(np.uint8), A, (W, H), flags=cv2.INTER_NEAREST) > 0
+
+
+# -- colour search --------------------------------------------------------------------
+
+
+@dataclass
+class _State:
+    """What one pass knows about the object while walking through the frames."""
+
+    centre: np.ndarray  # [2] pixels
+    velocity: np.ndarray  # [2] pixels per frame
+    size: np.ndarray  # [2] bbox width, height (clear views only)
+    mask: np.ndarray  # [H, W] its extent in the last frame it was found (hidden parts included)
+    visible: np.ndarray  # [H, W] its visible part there
+    t: int  # that frame
+    colour: float  # mean object probability of the visible part (global colour model)
+    area: float  # usual extent in pixels (confident views only)
+    lost: int = 0  # frames since it was found
+    carrier: int | None = None  # the hand carrying it (0 left, 1 right)
+    carried: int = 0  # consecutive frames it was seen carried by that hand
+    pending: tuple | None = field(default=None, repr=False)  # see _Tracker.run
+
+
+def locate(prob: np.ndarray, state: _State, hands: np.ndarray | None = None, floor: float = 0.35) -> tuple[np.ndarray, float, float]:
+    """Centre, mean probability and prior plausibility of the object-sized window that best
+    explains the frame.
+
+    The whole frame is searched: a window's mean object probability is weighted by
+    floor + (1 - floor) g, with g a Gaussian around the constant-velocity prediction (or
+    around a visible hand [2, 3], whichever is larger: handled objects stay near hands),
+    so a clearly better-looking window anywhere wins over a mediocre one nearby (a fast or
+    briefly hidden object is re-acquired), while near-ties go to the motion prediction.
+    ``floor`` 0 searches near the prediction and the hands only, and the prediction's
+    reach then stays as it was when the object was lost.
+    """
+    import cv2
+
+    H, W = prob.shape
+    w, h = np.maximum(state.size, 3).astype(int)
+    score = cv2.boxFilter(prob.astype(np.float32), -1, (int(w), int(h)), normalize=True, borderType=cv2.BORDER_CONSTANT)
+    pred = state.centre + state.velocity
+    diag = float(np.hypot(w, h))
+    sigma = max(1.5 * diag, 2.0 * float(np.linalg.norm(state.velocity)))
+    if floor > 0:
+        sigma *= 1.0 + 0.5 * state.lost  # the longer lost, the further it may be
+    yy, xx = np.mgrid[:H, :W]
+    g = np.exp(-0.5 * ((xx + 0.5 - pred[0]) ** 2 + (yy + 0.5 - pred[1]) ** 2) / sigma**2)
+    if hands is not None:
+        for hx, hy, hv in hands:
+            if np.isfinite(hx) and hv >= 0.5:
+                dh2 = (xx + 0.5 - hx) ** 2 + (yy + 0.5 - hy) ** 2
+                g = np.maximum(g, np.exp(-0.5 * dh2 / (0.75 * diag) ** 2))
+    total = score * (floor + (1.0 - floor) * g)
+    y, x = divmod(int(np.argmax(total)), W)
+    return np.array([x + 0.5, y + 0.5]), float(score[y, x]), float(g[y, x])
+
+
+def suppress_head(prob: np.ndarray, kp: np.ndarray, last_centre: np.ndarray) -> None:
+    """Damp the object probability on the person's head, in place.
+
+    Skin is the commonest look-alike of a handled object's colours and the face is always
+    in view; unless the object was last seen on the head, head pixels count 5x less.
+    """
+    face = kp[:11]  # nose, eyes, ears, mouth
+    if not np.isfinite(face).all() or np.median(face[:, 2]) < 0.5:
+        return
+    c = face[:, :2].mean(0)
+    r = 1.3 * float(np.linalg.norm(face[:, :2] - c, axis=1).max()) + 2.0
+    if np.linalg.norm(last_centre - c) < r:
+        return
+    H, W = prob.shape
+    x0, x1 = int(max(0, c[0] - r)), int(min(W, c[0] + r + 1))
+    y0, y1 = int(max(0, c[1] - r)), int(min(H, c[1] + r + 1))
+    if x1 <= x0 or y1 <= y0:
+        return
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    inside = (xx + 0.5 - c[0]) ** 2 + (yy + 0.5 - c[1]) ** 2 <= r * r
+    prob[y0:y1, x0:x1][inside] *= 0.2
+
+
+# -- the tracker ----------------------------------------------------------------------
+
+
+@dataclass
+class _Found:
+    """One frame's result: the visible mask, the extent (hand-covered parts included),
+    confidence in [0, 1], the cue that found it and its colour score."""
+
+    visible: np.ndarray
+    extent: np.ndarray
+    confidence: float = 0.0
+    cue: str = ""
+    colour: float = 0.0
+
+
+class _Tracker:
+    """The state shared by every pass over the video: the frames, person and hand inputs,
+    the prompt's colour model and the feature bank."""
+
+    def __init__(self, images, prompt_mask, prompt_frame, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames):
+        import cv2
+
+        self.images = images
+        self.human_probs = human_probs
+        self.kp2d = kp2d
+        self.hands = hand_points(kp2d)
+        self.min_score = min_score
+        self.adapt = adapt
+        self.min_align = min_align
+        self.max_hand_frames = max_hand_frames
+        self.ref_area = float(prompt_mask.sum())
+        _, self.s0 = mask_stats(prompt_mask)
+        ring = cv2.dilate(prompt_mask.astype(np.uint8), np.ones((5, 5), np.uint8), iterations=max(2, int(0.15 * self.s0.max() / 2))) > 0
+        self.distractors = None
+        if human_probs is not None:
+            # The person's colours in every frame (a held object inside the person's mask
+            # contaminates this a little; the object's own histogram is far more peaked).
+            keep = human_probs > 127
+            keep[prompt_frame] &= ~ring
+            flat = np.flatnonzero(keep)
+            if len(flat):
+                pick = np.random.default_rng(0).choice(flat, size=min(len(flat), 400_000), replace=False)
+                self.distractors = images.reshape(-1, 3)[pick]
+        self.base_model = ColourModel.fit(images[prompt_frame], prompt_mask, ~ring, self.distractors)
+        self.ref_score = float(self.base_model.prob(images[prompt_frame])[prompt_mask].mean())
+        self.bank = FeatureBank(images)
+        self.bank.pin(prompt_frame, prompt_mask)
+
+    # -- models -----------------------------------------------------------------------
+
+    def _adapted(self, t: int, mask: np.ndarray) -> ColourModel:
+        """The prompt's colour model with a share ``adapt`` of frame t's object colours."""
+        import cv2
+
+        if self.adapt <= 0:
+            return self.base_model
+        ring = cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8), iterations=3) > 0
+        return self.base_model.blend(ColourModel.fit(self.images[t], mask, ~ring, self.distractors), self.adapt)
+
+    def _local_model(self, st: _State) -> ColourModel:
+        """The object's colours against its surroundings (a band of 0.4 x its size around
+        it, hands and all) in the last frame it was found; the person's colours weigh in
+        as in the prompt's model."""
+        import cv2
+
+        r = max(8, int(0.4 * float(st.size.max())))
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        x0, y0, x1, y1 = window(st.mask, 1.0)
+        band = np.zeros_like(st.mask)
+        band[y0:y1, x0:x1] = cv2.dilate(st.mask[y0:y1, x0:x1].astype(np.uint8), k) > 0
+        return ColourModel.fit(self.images[st.t], st.visible, band & ~st.visible, self.distractors)
+
+    def _hands_mask(self, t: int) -> np.ndarray:
+        if self.kp2d is None:
+            return np.zeros(self.images.shape[1:3], bool)
+        return hand_regions(self.kp2d[t], self.images.shape[1:3])
+
+    # -- passes -----------------------------------------------------------------------
+
+    def run(self, start: int, direction: int, masks: np.ndarray, conf: np.ndarray, cues: list, fill: bool = False, on_frame=None) -> None:
+        """Track from frame ``start`` (its mask known) towards ``direction`` (+1 or -1),
+        writing ``masks``, ``conf`` and ``cues`` in place. ``fill``: only into empty
+        frames, stopping at the first frame already found or where the object is lost."""
+        T = len(self.images)
+        m0 = masks[start]
+        c0, s0 = mask_stats(m0)
+        model = self._adapted(start, m0)
+        st = _State(c0, np.zeros(2), s0, m0, m0, start, float(model.prob(self.images[start])[m0].mean()), float(m0.sum()))
+        self.bank.forget(lambda u: False)
+        self.bank.add(start, m0)
+
+        def undo(st: _State, t_end: int) -> tuple[_State, ColourModel]:
+            """Drop a tentative hand find and what followed it, up to frame t_end."""
+            t_h, _, st_before, model_before = st.pending
+            for u in range(t_h, t_end, direction):
+                masks[u], conf[u], cues[u] = False, 0.0, ""
+            self.bank.forget(lambda u: (u - t_h) * direction < 0)
+            st_before.lost += abs(t_end - t_h)
+            return st_before, model_before
+
+        t = start + direction
+        while 0 <= t < T and not (fill and masks[t].any()):
+            f = self._step(t, st, direction, model)
+            if st.pending is not None and f.cue != "hand":
+                # A find by the hand cue alone is tentative: the next frame, found without
+                # the hand's help, must show the object carried by that hand, or both go.
+                hand = st.pending[1]
+                if not (f.visible.any() and st.t == t - direction and self._confirms_carry(st.t, t, st.mask, f.extent, hand)):
+                    st, model = undo(st, t)
+                    f = _Found(np.zeros_like(f.visible), np.zeros_like(f.visible))
+                st.pending = None
+            if fill and not f.visible.any():
+                break
+            masks[t], conf[t], cues[t] = f.visible, f.confidence, f.cue
+            if f.visible.any():
+                model = self._update(st, t, direction, f, model)
+            else:
+                st.centre = st.centre + st.velocity
+                st.velocity = 0.5 * st.velocity  # a hidden object's motion is unknown
+                st.lost += 1
+            if on_frame:
+                on_frame()
+            t += direction
+        if st.pending is not None:  # the clip ended before any confirmation
+            undo(st, t)
+
+    def _update(self, st: _State, t: int, direction: int, f: _Found, model: ColourModel) -> ColourModel:
+        """Fold frame t's find into the state; returns the colour model for the next frame."""
+        if f.cue == "hand" and st.pending is None:
+            st.pending = (t, st.carrier, copy.deepcopy(st), model)
+        carrier = carrying_hand(self.hands, st.t, t, st.mask, f.extent) if st.t == t - direction else None
+        if carrier is not None:
+            st.carried = st.carried + 1 if carrier == st.carrier else 1
+            st.carrier = carrier
+        elif f.confidence >= 0.8:
+            st.carrier, st.carried = None, 0  # clearly seen, and not in that hand
+        c, s = mask_stats(f.visible)
+        st.velocity = 0.5 * st.velocity + 0.5 * (c - st.centre) / (st.lost + 1)
+        st.centre = c
+        if f.cue != "hand" and (f.cue != "colour" or f.colour >= 0.8 * self.ref_score):
+            # Only clear views update the size; occluded views would shrink it.
+            st.size = np.clip(0.7 * st.size + 0.3 * s, 0.5 * self.s0, 2.0 * self.s0)
+        if f.confidence >= 0.8:
+            st.area = 0.7 * st.area + 0.3 * float(f.extent.sum())
+        st.lost = 0
+        st.mask, st.visible, st.t, st.colour = f.extent, f.visible, t, f.colour
+        self.bank.add(t, f.visible)
+        return self._adapted(t, f.visible)
+
+    def _confirms_carry(self, t0: int, t1: int, m0: np.ndarray, m1: np.ndarray, hand: int) -> bool:
+        """Whether the object the hand cue found in frame t0 (``m0``), found again in frame
+        t1 (``m1``), is carried by ``hand``: touching it and moving with it (loosely: an
+        object turning in the hand moves its centre), and not staying put with the
+        background (a piece of background beside the hand, which any motion cue follows
+        perfectly; when the hand hardly moves either, nothing tells them apart and the
+        find is dropped)."""
+        import cv2
+
+        if carrying_hand(self.hands, t0, t1, m0, m1, touch=0.35, moved_max=0.6) != hand:
+            return False
+        static0 = ~(cv2.dilate(m0.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0)
+        if self.human_probs is not None:
+            static0 &= self.human_probs[t0] <= 127
+        Hm = self.bank.background_motion(t0, t1, static0)
+        if Hm is None:
+            return True
+        # Where m0 would be had it stayed with the background; m1 (partly hidden by the
+        # hand, maybe) lying inside that means it did.
+        H, W = m0.shape
+        m0_bg = cv2.warpPerspective(m0.astype(np.uint8), Hm, (W, H), flags=cv2.INTER_NEAREST)
+        m0_bg = cv2.dilate(m0_bg, np.ones((5, 5), np.uint8)) > 0
+        return bool((m1 & m0_bg).sum() < 0.9 * m1.sum())
+
+    # -- one frame --------------------------------------------------------------------
+
+    def _step(self, t: int, st: _State, direction: int, model: ColourModel) -> _Found:
+        """Frame t, the object last found in frame ``st.t``: the first cue that holds."""
+        rgb = self.images[t]
+        H, W = rgb.shape[:2]
+        prob = model.prob(rgb)
+        if self.kp2d is not None:
+            suppress_head(prob, self.kp2d[t], st.centre)
+        hp = None if self.human_probs is None else self.human_probs[t].astype(np.float32) / 255.0
+        # The hands are next to a handled object all the time and look like a skin-coloured
+        # one: they count 5x less in the colour search and are never the visible object.
+        hands = self._hands_mask(t)
+        prob_search = prob.copy()
+        prob_search[hands] *= 0.2
+        hands_t = None if self.hands is None else self.hands[t]
+        # A carried object stays with its hand (a look-alike across the room is not it):
+        # the search keeps to the hand, if visible, and near the motion prediction.
+        # Otherwise the whole frame is searched.
+        if abs(t - st.t) > self.max_hand_frames:
+            st.carrier, st.carried = None, 0  # lost too long: it may have left the hand
+        floor = 0.35
+        if st.carried >= 2:
+            floor = 0.0
+            hands_t = self.hands[t, [st.carrier]] if _visible(self.hands, t, st.carrier) else None
+
+        def colour_of(m):
+            return float(prob[m].mean()) if m.any() else 0.0
+
+        # 1. Motion.
+        found = self._by_motion(t, st, direction, rgb, hp, hands)
+        if found is not None:
+            found.colour = colour_of(found.visible)
+            # It must still look like the object: clearly (half the prompt's evidence), or
+            # keeping most of what it had (a turning object shows new faces gradually; a
+            # fit that slid onto a hand or the background loses it at once) ...
+            looks = found.colour >= self.min_score * self.ref_score or found.colour >= 0.6 * st.colour
+            # ... and no clearly better-looking place elsewhere (the fit held on to a
+            # look-alike while the object moved away, e.g. a hand after a bounce).
+            centre, score, _ = locate(prob_search, st, hands_t, floor)
+            far = np.linalg.norm(centre - mask_stats(found.visible)[0]) > 0.5 * float(np.hypot(*st.size))
+            better = far and score > 1.3 * found.colour and score >= self.min_score * self.ref_score
+            if looks and not better:
+                return found
+
+        # 2. Colour search. The evidence needed falls with prior plausibility: min_score
+        #    at a moderately likely place, 0.7x that where predicted or at a hand, 1.3x far
+        #    from both.
+        centre, score, plausible = locate(prob_search, st, hands_t, floor)
+        if score >= self.min_score * self.ref_score * (1.3 - 0.6 * plausible):
+            cf = min(1.0, score / self.ref_score)
+            seg = grabcut_at(rgb, prob_search, centre, st.size, hp)
+            seg = fill_holes(largest_component_near(seg, tuple(centre))) & ~hands if seg.any() else seg
+            if 0.25 * self.ref_area <= seg.sum() <= 3.0 * self.ref_area:
+                return _Found(seg, seg, cf, "colour", score)
+            # GrabCut leaked or collapsed: keep the probable pixels in the located window.
+            yy, xx = np.mgrid[:H, :W]
+            ell = ((xx + 0.5 - centre[0]) / (0.5 * st.size[0])) ** 2 + ((yy + 0.5 - centre[1]) / (0.5 * st.size[1])) ** 2
+            fallback = (ell <= 1.0) & (prob_search > 0.5)
+            if fallback.sum() >= 0.25 * self.ref_area:
+                fallback = fill_holes(largest_component_near(fallback, tuple(centre))) & ~hands
+                return _Found(fallback, fallback, cf, "colour", score)
+
+        # 3. The hand: an object carried for a while is still in that hand, whatever face
+        #    it now shows (for a few frames; past them it may have been put down).
+        h = st.carrier
+        if st.carried >= 2 and _visible(self.hands, t, h):
+            seg = grabcut_at_hand(rgb, self.hands[t, h, :2], float(np.sqrt(st.area)), hp)
+            visible = seg & ~hands
+            if 0.4 * st.area <= visible.sum() <= 2.5 * st.area and solidity(seg) >= 0.8:
+                return _Found(visible, visible, 0.3, "hand", colour_of(visible))
+        empty = np.zeros((H, W), bool)
+        return _Found(empty, empty)
+
+    def _by_motion(self, t: int, st: _State, direction: int, rgb: np.ndarray, hp, hands: np.ndarray) -> _Found | None:
+        """Cue 1: the last extent placed by each motion hint, fitted to this frame's local
+        colour likelihood; the best fit, if good enough, refined by GrabCut."""
+        lp = self._local_model(st).prob(rgb)
+        cands = [("stay", st.mask)]
+        feat = self.bank.match(t)
+        if feat is not None:
+            cands.append(("features", feat[0]))
+        if st.t == t - direction:
+            flow = warp_mask_by_flow(self.images[st.t], rgb, st.mask)
+            if flow.sum() >= 0.25 * st.mask.sum():
+                cands.append(("flow", flow))
+            # Not while a hand find waits for confirmation: that must come without the hand.
+            h = st.carrier
+            if st.pending is None and st.carried >= 2 and _visible(self.hands, st.t, h) and _visible(self.hands, t, h):
+                cands.append(("carried", move_with_hand(st.mask, self.kp2d[st.t], self.kp2d[t], h)))
+        best = None
+        for name, cand in cands:
+            if cand.any():
+                aligned, cc = align_mask(cand, lp)
+                if aligned is not None and aligned.any() and (best is None or cc > best[2]):
+                    best = (name, aligned, cc)
+        if best is None or best[2] < self.min_align:
+            return None  # moved too far, hidden, or changed too much
+        cue, pred, cc = best
+        seg = grabcut_from_seed(rgb, lp, pred, hp)
+        seg = fill_holes(largest_component_near(seg, tuple(mask_stats(pred)[0]))) if seg.any() else seg
+        if not (seg.any() and iou(seg, pred) >= 0.5 and 0.5 <= seg.sum() / pred.sum() <= 2.0):
+            seg = pred  # GrabCut wandered off: keep the fitted shape
+        if (seg & ~hands).sum() < 0.25 * seg.sum():
+            return None  # mostly hand: the fit slid onto the hand holding the object
+        # Fingers in front of the object: the extent carries on to the next frame, the
+        # visible mask leaves out hand pixels that do not look like the object.
+        visible = seg & ~(hands & (lp < 0.5))
+        cf = float(np.clip((cc - self.min_align) / (0.9 - self.min_align), 0.3, 1.0))
+        return _Found(visible, seg, cf, cue)
+
+
+def propagate_masks(
+    images: np.ndarray,
+    prompt_mask: np.ndarray,
+    prompt_frame: int,
+    human_probs: np.ndarray | None = None,
+    kp2d: np.ndarray | None = None,
+    min_score: float = 0.5,
+    adapt: float = 0.1,
+    min_align: float = 0.5,
+    max_hand_frames: int = 4,
+    cues: list | None = None,
+    on_frame=None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Propagate one frame's object mask through the video (see the module docstring).
+
+    images [T, H, W, 3] uint8; prompt_mask [H, W] bool at frame ``prompt_frame``;
+    human_probs [T, H, W] uint8 person probabilities (optional prior); kp2d [T, 33, 3]
+    MediaPipe keypoints (optional: the hands and the head).
+
+    ``min_score``: a colour-search window whose mean object probability is below this
+    fraction of the prompt mask's counts as "object not visible" (0.7x that where the
+    motion prediction or a hand puts the object, 1.3x far from both); a motion fit must
+    keep this fraction, or 0.6 of what it had in the last frame. ``adapt``: share of the
+    last found mask's colours in the colour model. ``min_align``: the least correlation
+    of a motion fit. ``max_hand_frames``: how many frames after losing a carried object
+    the hand cue looks for it. ``cues``: a list that receives the cue that found each
+    frame ("prompt", "stay", "features", "flow", "carried", "colour", "hand" or "").
+
+    Returns (masks [T, H, W] bool, confidence [T] in [0, 1]; 0 where the object was lost).
+    """
+    T, H, W, _ = images.shape
+    if not prompt_mask.any():
+        raise UserError(f"the object prompt on frame {prompt_frame} gave an empty mask")
+    masks = np.zeros((T, H, W), bool)
+    conf = np.zeros(T)
+    found = [""] * T
+    masks[prompt_frame], conf[prompt_frame], found[prompt_frame] = prompt_mask, 1.0, "prompt"
+    tracker = _Tracker(images, prompt_mask, prompt_frame, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames)
+    done = [1]
+
+    def tick():
+        done[0] += 1
+        if on_frame:
+            on_frame(min(done[0], T))
+
+    if on_frame:
+        on_frame(1)
+    for direction in (+1, -1):
+        tracker.run(prompt_frame, direction, masks, conf, found, on_frame=tick)
+    # Back into each gap from where the object was found again (it reappeared with a face
+    # or at a place the pass through the gap could not connect to).
+    for direction in (+1, -1):
+        for t in range(prompt_frame + direction, T if direction > 0 else -1, direction):
+            if masks[t].any() and not masks[t - direction].any():
+                tracker.run(t, -direction, masks, conf, found, fill=True)
+    log.debug("object cues per frame: %s", found)
+    if cues is not None:
+        cues[:] = found
+    return masks, conf
