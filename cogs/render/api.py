@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -74,17 +75,17 @@ def rasterize(
         R, t = viewmat[:3, :3], viewmat[:3, 3]
         campos = -(R.T @ t)
         colors = sh_to_color(sh_degree, means - campos, colors)
-    features = torch.cat([colors, proj.depths[:, None]], dim=-1)  # depth rides as a channel
-    pixel_pass = torch_backend.rasterize_pixels if backend == "torch" else cpu_backend.rasterize_pixels
-    feat, alpha = pixel_pass(proj.means2d, proj.conics, opacities, features, proj.radii,
-                             proj.depths, width, height)
-
-    out_colors = feat[..., :D]
-    if background is not None:
-        out_colors = out_colors + (1.0 - alpha) * background
-    has = alpha > 0
-    depth = torch.where(has, feat[..., D:] / torch.where(has, alpha, torch.ones_like(alpha)),
-                        torch.zeros_like(alpha))
+    if backend == "torch":
+        # depth rides along as one more channel, then the per-pixel finish
+        features = torch.cat([colors, proj.depths[:, None]], dim=-1)
+        feat, alpha = torch_backend.rasterize_pixels(proj.means2d, proj.conics, opacities,
+                                                     features, proj.radii, proj.depths,
+                                                     width, height)
+        out_colors, depth = torch_backend.finish(feat, alpha, D, background)
+    else:
+        out_colors, alpha, depth = cpu_backend.rasterize_image(
+            proj.means2d, proj.conics, opacities, colors, proj.depths, background, proj.radii,
+            width, height)
     means2d = proj.means2d
     if means2d.requires_grad:
         means2d.retain_grad()
@@ -100,6 +101,13 @@ def _resolve_backend(backend: str, means: Tensor) -> str:
             return "gsplat"
         return "cpu"
     return backend
+
+
+def _all_finite(t: Tensor) -> bool:
+    if t.device.type == "cpu" and t.dtype in (torch.float32, torch.float64):
+        # single-threaded numpy: no torch thread-pool wake-up for a tiny check
+        return bool(np.isfinite(t.detach().numpy()).all())
+    return bool(torch.isfinite(t.detach()).all())
 
 
 def _validate(means, quats, scales, opacities, colors, viewmat, K, width, height, near, far,
@@ -154,7 +162,7 @@ def _validate(means, quats, scales, opacities, colors, viewmat, K, width, height
         raise ValueError(f"rasterize: `background` must have shape [{D}], got {list(background.shape)}")
 
     for name, t in named.items():
-        if not bool(torch.isfinite(t.detach()).all()):
+        if not _all_finite(t):
             bad = int((~torch.isfinite(t.detach())).sum().item())
             raise ValueError(f"rasterize: `{name}` contains {bad} non-finite values")
     return D

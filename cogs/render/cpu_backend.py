@@ -57,52 +57,84 @@ def bin_tiles(means2d: np.ndarray, radii: np.ndarray, depths: np.ndarray, width:
     return _kernels.bin_gaussians(means2d, radii, order, tiles_x, tiles_y)
 
 
-class _PixelPass(torch.autograd.Function):
+class _Rasterize(torch.autograd.Function):
+    """Pixel pass plus the per-pixel finish (background, expected depth) in one node.
+
+    The finish is a handful of numpy operations here rather than torch ones: after a numba
+    parallel region, every multi-threaded torch op on an image-sized tensor can stall on a
+    thread of the other pool, and on a loaded machine each such stall costs a time slice.
+    """
+
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, radii, depths, width, height):
+    def forward(ctx, means2d, conics, opacities, colors, depths, background, radii, width,
+                height):
         tiles_x, tiles_y = tile_grid(width, height)
         m2, co, op = _np32(means2d), _np32(conics), _np32(opacities)
+        z = _np32(depths)
         r = np.ascontiguousarray(radii.detach().cpu().numpy().astype(np.int32, copy=False))
-        offsets, ids = bin_tiles(m2, r, _np32(depths), width, height)
+        offsets, ids = bin_tiles(m2, r, z, width, height)
         tile_order = _tile_order(tiles_x, tiles_y)
-        fe = _pad4(_np32(features))
+        D = colors.shape[1]
+        fe = _pad4(np.concatenate([_np32(colors), z[:, None]], axis=1))
         spans = _kernels.support_spans(m2, co, op)
         geometry = (offsets, ids, m2, co, op, fe, spans, width, height, tiles_x, tile_order)
         feat, T_final, last = _kernels.forward(*geometry)
-        ctx.kernel_state = (geometry, T_final, last)
-        ctx.like = (means2d, conics, opacities, features)
-        to = dict(device=features.device, dtype=features.dtype)
-        out_feat = torch.from_numpy(feat[..., :features.shape[1]]).to(**to)
-        out_alpha = torch.from_numpy((1.0 - T_final)[..., None]).to(**to)
-        return out_feat, out_alpha
+        alpha = 1.0 - T_final  # [H, W]
+        img = feat[..., :D]
+        bg = None if background is None else _np32(background)
+        if bg is not None:
+            img = img + (1.0 - alpha)[..., None] * bg
+        has = alpha > 0
+        zsum = feat[..., D]
+        depth = np.where(has, zsum / np.where(has, alpha, 1.0), 0.0).astype(np.float32)
+        ctx.kernel_state = (geometry, T_final, last, alpha, zsum, bg, D)
+        ctx.like = (means2d, conics, opacities, colors, depths, background)
+        to = dict(device=colors.device, dtype=colors.dtype)
+        return (torch.from_numpy(np.ascontiguousarray(img)).to(**to),
+                torch.from_numpy(alpha[..., None]).to(**to),
+                torch.from_numpy(depth[..., None]).to(**to))
 
     @staticmethod
-    def backward(ctx, grad_feat, grad_alpha):
-        geometry, T_final, last = ctx.kernel_state
+    def backward(ctx, g_img, g_alpha, g_depth):
+        geometry, T_final, last, alpha, zsum, bg, D = ctx.kernel_state
+        g_img, g_depth = _np32(g_img), _np32(g_depth)[..., 0]
+        g_a = _np32(g_alpha)[..., 0].copy()
+        g_bg = None
+        if bg is not None:
+            g_a -= g_img @ bg  # colour = sum + (1 - alpha) bg
+            g_bg = np.einsum("hwd,hw->d", g_img, (1.0 - alpha)).astype(np.float32)
+        has = alpha > 0
+        safe = np.where(has, alpha, 1.0)
+        g_z = np.where(has, g_depth / safe, 0.0).astype(np.float32)  # depth = zsum / alpha
+        g_a -= np.where(has, g_depth * zsum / (safe * safe), 0.0).astype(np.float32)
+        grad_feat = _pad4(np.concatenate([g_img, g_z[..., None]], axis=-1))
         ids, n = geometry[1], geometry[2].shape[0]
-        slots = _kernels.backward(*geometry, T_final, last, _pad4(_np32(grad_feat)),
-                                  _np32(grad_alpha[..., 0]))
-        grads = _kernels.reduce_slots(ids, n, *slots)
+        slots = _kernels.backward(*geometry, T_final, last, grad_feat,
+                                  np.ascontiguousarray(g_a, dtype=np.float32))
+        g_m2, g_co, g_op, g_fe = _kernels.reduce_slots(ids, n, *slots)
+        grads = (g_m2, g_co, g_op, np.ascontiguousarray(g_fe[:, :D]),
+                 np.ascontiguousarray(g_fe[:, D]), g_bg)
         out = []
         for g, like in zip(grads, ctx.like):
-            if g.ndim == 2:
-                g = np.ascontiguousarray(g[:, :like.shape[1]])
-            out.append(torch.from_numpy(g).to(device=like.device, dtype=like.dtype))
-        return (*out, None, None, None, None)
+            out.append(None if g is None or like is None
+                       else torch.from_numpy(g).to(device=like.device, dtype=like.dtype))
+        return (*out, None, None, None)
 
 
-def rasterize_pixels(
+def rasterize_image(
     means2d: Tensor,  # [N, 2]
     conics: Tensor,  # [N, 3]
     opacities: Tensor,  # [N]
-    features: Tensor,  # [N, F]
+    colors: Tensor,  # [N, D]
+    depths: Tensor,  # [N] camera z: sort key and depth channel
+    background: Tensor | None,  # [D]
     radii: Tensor,  # [N] int, 0 = culled
-    depths: Tensor,  # [N] sort key, front to back
     width: int,
     height: int,
-) -> tuple[Tensor, Tensor]:
-    """Same contract as :func:`cogs.render.torch_backend.rasterize_pixels`."""
-    return _PixelPass.apply(means2d, conics, opacities, features, radii, depths, width, height)
+) -> tuple[Tensor, Tensor, Tensor]:
+    """-> colours [H, W, D] (with background), alpha [H, W, 1], expected depth [H, W, 1]."""
+    return _Rasterize.apply(means2d, conics, opacities, colors, depths, background, radii,
+                            width, height)
 
 
 def warmup() -> float:

@@ -124,3 +124,15 @@ def rasterize_pixels(
     out_feat = torch.cat([f for f, _ in rows], dim=0) + zero
     out_alpha = torch.cat([a for _, a in rows], dim=0) + zero
     return out_feat, out_alpha
+
+
+def finish(feat: Tensor, alpha: Tensor, D: int, background: Tensor | None) -> tuple[Tensor, Tensor]:
+    """[H, W, D+1] composited colour + depth channel, [H, W, 1] alpha -> colour with the
+    background behind (T_final = 1 - alpha), expected depth (0 where alpha == 0)."""
+    colors = feat[..., :D]
+    if background is not None:
+        colors = colors + (1.0 - alpha) * background
+    has = alpha > 0
+    depth = torch.where(has, feat[..., D:] / torch.where(has, alpha, torch.ones_like(alpha)),
+                        torch.zeros_like(alpha))
+    return colors, depth
