@@ -230,6 +230,13 @@ def main() -> None:
             row["cpu_profile_ms"] = cpu_profile(case, reps)
             cases.append(row)
     result["cases"] = cases
+    bar = next((c for c in cases if (c["width"], c["height"], c["n_gaussians"]) == (256, 192, 20_000)), None)
+    if bar is not None and "speedup_cpu_over_torch" in bar:
+        sp = bar["speedup_cpu_over_torch"]["fwd_bwd"]
+        mp = bar["cpu"]["fwd_bwd_mpairs_per_s"]
+        result["bar_256x192_20k"] = {"speedup_fwd_bwd": sp, "required_speedup": 30,
+                                     "cpu_fwd_bwd_mpairs_per_s": mp, "required_mpairs_per_s": 100,
+                                     "met": bool(sp >= 30 and mp >= 100)}
     result["load_avg_end"] = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps(result))
 
