@@ -6,8 +6,9 @@ Layout and ordering (shared with the torch reference so results match):
   :func:`cogs.render.projection.tile_ranges`, in float32) in a global front-to-back order
   (radix sort of depths, stable like ``torch.argsort(stable=True)``), so each tile's list
   ``ids[offsets[t]:offsets[t+1]]`` is already depth sorted.
-* ``prange`` runs over tiles: a tile owns its pixels and its slice of the intersection
-  list, so there are no write races and no atomics.
+* Tiles are spread over a small thread pool (:mod:`cogs.render._threads`; nogil kernels,
+  no spinning workers): a tile owns its pixels and its slice of the intersection list, so
+  there are no write races and no atomics.
 * Inside a tile the loop is Gaussian-major and SIMD across pixels. A tile's state lives in
   flat 256-pixel arrays (row-major, 16 wide); each Gaussian visits only the rows of the
   tile where its alpha can reach 1/255 (the ellipse ``d^T conic d <= 2 ln(255 o)``,
@@ -34,7 +35,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
+
+from cogs.render._threads import parallel_for
 
 TILE = 16
 TILE_PIX = TILE * TILE
@@ -185,17 +188,9 @@ def _support_spans_range(lo, hi, means2d, conics, opacities, out):
         _support_span(g, means2d, conics, opacities, out)
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _support_spans_chunks(means2d, conics, opacities, out):
-    n = means2d.shape[0]
-    n_chunks = (n + 1023) // 1024
-    for k in prange(n_chunks):
-        _support_spans_range(k * 1024, min(n, (k + 1) * 1024), means2d, conics, opacities, out)
-
-
-# Below this many Gaussians an O(N) pass costs less than waking the thread pool (and on a
-# busy machine a parallel region waits for every thread to be scheduled).
-PARALLEL_MIN_N = 8192
+# Gaussians per work item of the O(N) passes: below two of them a pass runs serially,
+# where waking another thread costs more than it saves.
+MIN_CHUNK_N = 4096
 
 
 def support_spans(means2d, conics, opacities):
@@ -204,11 +199,8 @@ def support_spans(means2d, conics, opacities):
     ellipse ``d^T conic d <= 2 ln(255 o)``, enlarged by margins covering float32 rounding
     of the exponent. Empty (lo > hi) when o < 1/255."""
     out = np.empty((means2d.shape[0], 2), np.float64)
-    n = means2d.shape[0]
-    if n >= PARALLEL_MIN_N:
-        _support_spans_chunks(means2d, conics, opacities, out)
-    else:
-        _support_spans_range(0, n, means2d, conics, opacities, out)
+    parallel_for(_support_spans_range, means2d.shape[0], means2d, conics, opacities, out,
+                 min_chunk=MIN_CHUNK_N)
     return out
 
 
@@ -312,10 +304,17 @@ def _forward_tile(t, offsets, ids, means2d, conics, opacities, features, spans, 
                 out_feat[y0 + py, x0 + px, f] = acc[f * TILE_PIX + p]
 
 
-@njit(parallel=True, **_OPTS)
+@njit(**_OPTS)
+def _forward_tiles(k0, k1, tile_order, offsets, ids, means2d, conics, opacities, features, spans,
+                   width, height, tiles_x, out_feat, out_T, out_last):
+    for k in range(k0, k1):
+        _forward_tile(tile_order[k], offsets, ids, means2d, conics, opacities, features, spans,
+                      width, height, tiles_x, out_feat, out_T, out_last)
+
+
 def forward(offsets, ids, means2d, conics, opacities, features, spans, width, height, tiles_x,
             tile_order):
-    """Front-to-back compositing.
+    """Front-to-back compositing, tiles spread over the thread pool.
 
     Returns feat [H, W, F] (sum_i f_i alpha_i T_i), T_final [H, W] and last [H, W] int32
     (global intersection index of the last composited Gaussian, -1 when none).
@@ -324,11 +323,8 @@ def forward(offsets, ids, means2d, conics, opacities, features, spans, width, he
     out_feat = np.zeros((height, width, F), np.float32)
     out_T = np.ones((height, width), np.float32)
     out_last = np.full((height, width), -1, np.int32)
-    n_tiles = offsets.shape[0] - 1
-    for k in prange(n_tiles):
-        # a serial function per tile: a parfor body of its own compiles ~5 % slower
-        _forward_tile(tile_order[k], offsets, ids, means2d, conics, opacities, features, spans,
-                      width, height, tiles_x, out_feat, out_T, out_last)
+    parallel_for(_forward_tiles, tile_order.shape[0], tile_order, offsets, ids, means2d, conics,
+                 opacities, features, spans, width, height, tiles_x, out_feat, out_T, out_last)
     return out_feat, out_T, out_last
 
 
@@ -451,15 +447,24 @@ def _backward_tile(t, offsets, ids, means2d, conics, opacities, features, spans,
             g_feat[j, f + 3] = s3
 
 
-@njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
+@njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract", "reassoc"})
+def _backward_tiles(k0, k1, tile_order, offsets, ids, means2d, conics, opacities, features,
+                    spans, width, height, tiles_x, T_final, last_ids, grad_feat, grad_alpha,
+                    g_mean, g_conic, g_opac, g_feat):
+    for k in range(k0, k1):
+        _backward_tile(tile_order[k], offsets, ids, means2d, conics, opacities, features, spans,
+                       width, height, tiles_x, T_final, last_ids, grad_feat, grad_alpha, g_mean,
+                       g_conic, g_opac, g_feat)
+
+
 def backward(offsets, ids, means2d, conics, opacities, features, spans, width, height, tiles_x,
              tile_order, T_final, last_ids, grad_feat, grad_alpha):
-    """Back-to-front replay. Returns per-intersection gradient slots:
-    means2d [M, 2], conics [M, 3], opacities [M], features [M, F].
+    """Back-to-front replay, tiles spread over the thread pool. Returns per-intersection
+    gradient slots: means2d [M, 2], conics [M, 3], opacities [M], features [M, F].
 
-    ``reassoc`` lets LLVM vectorise the per-Gaussian sums over a span (a fixed association,
-    so still deterministic); alpha itself is computed by ``_power``/``_exp_neg``, compiled
-    without it, so the backward sees exactly the forward's alphas.
+    The tile function is compiled with ``reassoc`` so LLVM vectorises the per-Gaussian sums
+    over a span (a fixed association, so still deterministic); alpha itself is computed by
+    ``_power``/``_exp_neg``, compiled without it, so the backward sees the forward's alphas.
     """
     F = features.shape[1]
     M = ids.shape[0]
@@ -467,11 +472,9 @@ def backward(offsets, ids, means2d, conics, opacities, features, spans, width, h
     g_conic = np.zeros((M, 3), np.float32)
     g_opac = np.zeros(M, np.float32)
     g_feat = np.zeros((M, F), np.float32)
-    n_tiles = offsets.shape[0] - 1
-    for k in prange(n_tiles):
-        _backward_tile(tile_order[k], offsets, ids, means2d, conics, opacities, features, spans,
-                       width, height, tiles_x, T_final, last_ids, grad_feat, grad_alpha, g_mean,
-                       g_conic, g_opac, g_feat)
+    parallel_for(_backward_tiles, tile_order.shape[0], tile_order, offsets, ids, means2d, conics,
+                 opacities, features, spans, width, height, tiles_x, T_final, last_ids,
+                 grad_feat, grad_alpha, g_mean, g_conic, g_opac, g_feat)
     return g_mean, g_conic, g_opac, g_feat
 
 

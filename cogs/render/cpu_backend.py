@@ -138,23 +138,21 @@ def rasterize_image(
 
 
 def warmup() -> float:
-    """Compile (or load from numba's on-disk cache) every CPU kernel by rendering tiny
-    scenes forward and backward: one below and one at the size where the O(N) passes switch
-    to their parallel variants. Returns the seconds it took. Call it once at start-up so
+    """Compile (or load from numba's on-disk cache) every CPU kernel by rendering a tiny
+    scene forward and backward. Returns the seconds it took. Call it once at start-up so
     that JIT time never lands inside a training loop."""
     from cogs.render.api import rasterize
 
     t0 = time.perf_counter()
     g = torch.Generator().manual_seed(0)
+    n = 8
+    means = (torch.rand(n, 3, generator=g) - 0.5) * 0.5 + torch.tensor([0.0, 0.0, 2.0])
+    means.requires_grad_(True)
+    quats = torch.randn(n, 4, generator=g)
+    scales = torch.full((n, 3), 0.05)
+    opac = torch.full((n,), 0.7)
+    colors = torch.rand(n, 3, generator=g)
     K = torch.tensor([[20.0, 0.0, 10.0], [0.0, 20.0, 10.0], [0.0, 0.0, 1.0]])
-    for n in (8, _kernels.PARALLEL_MIN_N):
-        means = (torch.rand(n, 3, generator=g) - 0.5) * 0.5 + torch.tensor([0.0, 0.0, 2.0])
-        means.requires_grad_(True)
-        quats = torch.randn(n, 4, generator=g)
-        scales = torch.full((n, 3), 0.05)
-        opac = torch.full((n,), 0.7)
-        colors = torch.rand(n, 3, generator=g)
-        out = rasterize(means, quats, scales, opac, colors, torch.eye(4), K, 20, 20,
-                        backend="cpu")
-        (out.colors.sum() + out.alpha.sum() + out.depth.sum()).backward()
+    out = rasterize(means, quats, scales, opac, colors, torch.eye(4), K, 20, 20, backend="cpu")
+    (out.colors.sum() + out.alpha.sum() + out.depth.sum()).backward()
     return time.perf_counter() - t0

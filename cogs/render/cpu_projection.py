@@ -19,14 +19,14 @@ import math
 
 import numpy as np
 import torch
-from numba import njit, prange
+from numba import njit
 from torch import Tensor
 
-from cogs.render._kernels import PARALLEL_MIN_N
+from cogs.render._kernels import MIN_CHUNK_N
+from cogs.render._threads import parallel_for
 from cogs.render.projection import EPS2D, Projected, _MAX_RADIUS
 
 _QUAT_EPS = 1e-12  # as cogs.geometry.rotations.quat_normalize
-_CHUNK = 1024  # Gaussians per parallel work item
 
 
 @njit(cache=True, nogil=True)
@@ -135,25 +135,11 @@ def _forward_range(lo, hi, means, quats, scales, cam, means2d, conics, depths, r
         radii[i] = r
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _forward_chunks(means, quats, scales, cam, means2d, conics, depths, radii):
-    # prange over chunks calling a serial function: a parfor body of its own compiles to
-    # far slower code for this tuple-heavy arithmetic.
-    n = means.shape[0]
-    n_chunks = (n + _CHUNK - 1) // _CHUNK
-    for k in prange(n_chunks):
-        _forward_range(k * _CHUNK, min(n, (k + 1) * _CHUNK), means, quats, scales, cam,
-                       means2d, conics, depths, radii)
-
-
 def project_forward(means, quats, scales, cam):
     n = means.shape[0]
     out = (np.empty((n, 2), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
            np.zeros(n, np.int32))
-    if n >= PARALLEL_MIN_N:
-        _forward_chunks(means, quats, scales, cam, *out)
-    else:
-        _forward_range(0, n, means, quats, scales, cam, *out)
+    parallel_for(_forward_range, n, means, quats, scales, cam, *out, min_chunk=MIN_CHUNK_N)
     return out
 
 
@@ -261,23 +247,11 @@ def _backward_range(lo, hi, means, quats, scales, cam, v_means2d, v_conics, v_de
             v_quats[i, k] = g[3 + k]
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _backward_chunks(means, quats, scales, cam, v_means2d, v_conics, v_depths, v_means,
-                     v_quats, v_scales):
-    n = means.shape[0]
-    n_chunks = (n + _CHUNK - 1) // _CHUNK
-    for k in prange(n_chunks):
-        _backward_range(k * _CHUNK, min(n, (k + 1) * _CHUNK), means, quats, scales, cam,
-                        v_means2d, v_conics, v_depths, v_means, v_quats, v_scales)
-
-
 def project_backward(means, quats, scales, cam, v_means2d, v_conics, v_depths):
     n = means.shape[0]
     out = (np.zeros((n, 3), np.float32), np.zeros((n, 4), np.float32), np.zeros((n, 3), np.float32))
-    if n >= PARALLEL_MIN_N:
-        _backward_chunks(means, quats, scales, cam, v_means2d, v_conics, v_depths, *out)
-    else:
-        _backward_range(0, n, means, quats, scales, cam, v_means2d, v_conics, v_depths, *out)
+    parallel_for(_backward_range, n, means, quats, scales, cam, v_means2d, v_conics, v_depths,
+                 *out, min_chunk=MIN_CHUNK_N)
     return out
 
 
