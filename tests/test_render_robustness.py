@@ -209,3 +209,21 @@ def test_auto_backend_on_cpu_tensors_is_the_cpu_backend():
         a = rasterize(*scene.gaussians(), *scene.camera(), backend="auto")
         b = rasterize(*scene.gaussians(), *scene.camera(), backend="cpu")
     assert torch.equal(a.colors, b.colors)
+
+
+def test_cpu_backend_renders_in_a_forked_child_after_rendering_in_the_parent():
+    """DataLoader-style fork: the child must not wait on the parent's pool threads."""
+    import multiprocessing as mp
+
+    scene = splat_scene(20000, 64, 48, seed=3)  # large enough to use the thread pool
+    with torch.no_grad():
+        parent = rasterize(*scene.gaussians(), *scene.camera(), backend="cpu").colors
+    ctx = mp.get_context("fork")
+    with ctx.Pool(1) as pool:
+        child = pool.apply_async(_render_colors_sum, (scene,)).get(timeout=60)
+    assert abs(child - float(parent.sum())) < 1e-3
+
+
+def _render_colors_sum(scene):
+    with torch.no_grad():
+        return float(rasterize(*scene.gaussians(), *scene.camera(), backend="cpu").colors.sum())

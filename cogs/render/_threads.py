@@ -15,6 +15,7 @@ The pool is process-wide (like numba's own) and sized by ``numba.get_num_threads
 
 from __future__ import annotations
 
+import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -22,17 +23,18 @@ import numba
 
 _lock = threading.Lock()
 _pool: ThreadPoolExecutor | None = None
-_pool_size = 0
+_pool_key: tuple[int, int] = (0, 0)  # (pid, size): a forked child needs its own threads
 
 
 def _executor(n_threads: int) -> ThreadPoolExecutor:
-    global _pool, _pool_size
+    global _pool, _pool_key
+    key = (os.getpid(), n_threads)
     with _lock:
-        if _pool is None or _pool_size != n_threads:
-            if _pool is not None:
+        if _pool is None or _pool_key != key:
+            if _pool is not None and _pool_key[0] == key[0]:
                 _pool.shutdown(wait=False)
             _pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="cogs-render")
-            _pool_size = n_threads
+            _pool_key = key
         return _pool
 
 
