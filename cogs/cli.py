@@ -42,7 +42,7 @@ class Check:
         if problems:
             console.print(f"[red]{self.scene}: {len(problems)} problem(s)[/red]")
             for p in problems:
-                console.print(f"  - {p}", markup=False, highlight=False)
+                console.print(f"  - {p}", markup=False, highlight=False, soft_wrap=True)
             return 1
         from cogs.data.scene import load_scene
 
@@ -90,6 +90,8 @@ def _commands() -> dict[str, type]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from rich.markup import escape
+
     from cogs.log import console, setup_logging
 
     setup_logging()
@@ -97,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         code = cmd.run()
     except UserError as e:
-        console.print(f"[red]error:[/red] {e}", highlight=False)
+        console.print(f"[red]error:[/red] {escape(str(e))}", highlight=False, soft_wrap=True)  # paths stay whole
         return 2
     except KeyboardInterrupt:
         console.print("[yellow]interrupted[/yellow]")

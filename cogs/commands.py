@@ -87,11 +87,15 @@ class Eval:
     """Output folder (default RUN/eval)."""
     renders: bool = True
     """Save composite, per-branch, ground-truth and error images of the held-out frames."""
+    pose_fit_steps: int = 40
+    """Also report metrics after fitting each held-out frame's body pose to that frame
+    (`test_time_pose_fit`, the Anim-NeRF/InstantAvatar protocol); 0 = strict numbers only."""
 
     def run(self) -> int:
         from cogs.eval.evaluate import evaluate
 
-        print(json.dumps(evaluate(self.run_dir, self.out, save_renders=self.renders), indent=1))
+        m = evaluate(self.run_dir, self.out, save_renders=self.renders, pose_fit_steps=self.pose_fit_steps)
+        print(json.dumps(m, indent=1))
         return 0
 
 

@@ -82,7 +82,7 @@ class LossWeights:
     object_unpremultiplied: float = 0.2
     pose_prior: float = 0.5
     """Translation part of the object pose prior, metres (L1)."""
-    pose_prior_rotation: float = 0.1
+    pose_prior_rotation: float = 0.02
     """Rotation part (geodesic, radians) of the pose prior."""
     acceleration: float = 50.0
     rotation_smoothness: float = 0.05
@@ -134,7 +134,7 @@ class LearningRates:
     object_scales: float = 5e-3
     object_quats: float = 1e-3
     object_trajectory: float = 2e-3
-    object_rotation: float = 2e-3
+    object_rotation: float = 5e-4
     human_means: float = 2e-4
     human_field: float = 2e-3
     human_color: float = 5e-3
@@ -155,6 +155,19 @@ class TrainConfig:
     human_density: Density = field(default_factory=lambda: Density(enabled=True, clone_only=True, max_gaussians=60_000, stop_fraction=0.6))
     object_density: Density = field(default_factory=lambda: Density(enabled=True, start_fraction=0.3, max_gaussians=15_000))
     scene_density: Density = field(default_factory=lambda: Density(enabled=True, max_gaussians=120_000))
+    pose_warmup_fraction: float = 0.25
+    """Stage I opens by aligning the input body poses to the masks with the seed held
+    fixed (only the pose corrections step, at `pose_warmup_lr_scale` x their rate), so
+    the appearance is learned on aligned poses instead of absorbing their errors."""
+    pose_warmup_lr_scale: float = 5.0
+    crop_human_losses: bool = True
+    """Stages I-II: image terms on a padded box around the person instead of the frame."""
+    object_appearance_warmup: float = 0.3
+    """Stage III opens with the object's trajectory held: its appearance first settles on
+    the initial poses, so that the poses are then refined against a coherent object."""
+    pose_realign_fraction: float = 0.0
+    """Stage II opens by re-aligning the poses (only they step, at the boosted rate) against
+    the full loss, now that the appearance is sharp enough to add photometric evidence."""
     visibility_every: int = 500
     """Recompute the human visibility scores every this many steps (and at stage starts)."""
     plane_assign_every: int = 500

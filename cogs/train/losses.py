@@ -99,3 +99,24 @@ def blur_mask(mask: Tensor, sigma_px: float = 0.0) -> Tensor:
     m = F.conv2d(F.pad(m, (r, r, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
     m = F.conv2d(F.pad(m, (0, 0, r, r), mode="replicate"), k.view(1, 1, -1, 1))
     return m[0].permute(1, 2, 0)
+
+
+def crop_box(a: Tensor, b: Tensor, pad: int = 8, min_side: int = 16) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1) of the padded bounding box of two [H, W] bool masks' union, at
+    least `min_side` on each side (SSIM's window fits); the whole frame when both are empty."""
+    H, W = a.shape
+    m = a | b
+    if not bool(m.any()):
+        return 0, H, 0, W
+    ys = torch.nonzero(m.any(1)).flatten()
+    xs = torch.nonzero(m.any(0)).flatten()
+    y0, y1 = int(ys[0]) - pad, int(ys[-1]) + 1 + pad
+    x0, x1 = int(xs[0]) - pad, int(xs[-1]) + 1 + pad
+    if y1 - y0 < min_side:
+        c = (y0 + y1) // 2
+        y0, y1 = c - min_side // 2, c + min_side // 2
+    if x1 - x0 < min_side:
+        c = (x0 + x1) // 2
+        x0, x1 = c - min_side // 2, c + min_side // 2
+    y0, x0 = max(y0, 0), max(x0, 0)
+    return y0, min(y1, H), x0, min(x1, W)

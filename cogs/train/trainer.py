@@ -101,6 +101,7 @@ class Trainer:
         if not self.data.train:
             raise UserError(f"scene {scene.root}: the split has no training frames")
         self.extent = scene_extent(self.data.viewmats)
+        self._object_share = _object_share(self.data)
         # Module initialisers draw from the global generators: seed them too.
         torch.manual_seed(cfg.seed)
         np.random.seed(cfg.seed)
@@ -158,8 +159,8 @@ class Trainer:
         ]
         if h.cfg.refine_pose:
             groups += [
-                {"params": [h.pose_delta], "lr": lr.human_pose, "name": "pose"},
-                {"params": [h.transl_delta], "lr": lr.human_transl, "name": "transl"},
+                {"params": [h.pose_delta, h.frame_pose_delta], "lr": lr.human_pose, "name": "pose"},
+                {"params": [h.transl_delta, h.frame_transl_delta], "lr": lr.human_transl, "name": "transl"},
             ]
         return torch.optim.Adam(groups, eps=1e-15)
 
@@ -238,26 +239,29 @@ class Trainer:
     def _background(self) -> torch.Tensor:
         return torch.rand(3, generator=self.gen)
 
-    def _human_terms(self, t: int, refine: bool, terms: dict) -> torch.Tensor:
+    def _human_terms(self, t: int, refine: bool, terms: dict, align: bool = False) -> torch.Tensor:
         d, w, cfg = self.data, self.cfg.weights, self.cfg
         bg = self._background()
         state = self.human.decode()
         out = self.compositor.render(d.viewmats[t], d.Ks[t], d.width, d.height, t, branches=("human",), background=bg, human_state=state)
-        img, hm, om = d.images[t], d.human[t], d.object[t]
+        img, hm, om, band = d.images[t], d.human[t], d.object[t], d.human_band[t]
+        rgb, alpha = out.rgb, out.alpha
+        if cfg.crop_human_losses:  # measure on a padded box around the person (not the whole frame)
+            y0, y1, x0, x1 = L.crop_box(hm[..., 0] > 0.5, alpha[..., 0].detach() > 0.05)
+            img, hm, om, band, rgb, alpha = (x[y0:y1, x0:x1] for x in (img, hm, om, band, rgb, alpha))
         valid = 1.0 - om  # the object hides the person there: no evidence either way
         target = L.composite_over(img, hm, bg)
-        pred = torch.where(om > 0, target, out.rgb)
+        pred = torch.where(om > 0, target, rgb)
         loss = w.human_rgb * L.photometric(pred, target, w.l1, w.dssim)
         terms["rgb"] = _val(loss)
-        alpha = out.alpha
         use_alpha = cfg.use_human_alpha_losses
         if use_alpha:
             m = w.human_mask * L.bce(alpha, hm, valid)
-            u = w.human_unpremultiplied * L.unpremultiplied(out.rgb, alpha, img, hm * valid, bg)
+            u = w.human_unpremultiplied * L.unpremultiplied(rgb, alpha, img, hm * valid, bg)
             terms["mask"], terms["unpremult"] = _val(m), _val(u)
             loss = loss + m + u
-        if refine and use_alpha:
-            a = w.human_alpha_refine * L.l1(alpha, hm, valid) + w.human_dice * L.dice(alpha * valid, hm * valid) + w.human_edge * L.edge(alpha, hm, d.human_band[t] * valid)
+        if (refine or align) and use_alpha:
+            a = w.human_alpha_refine * L.l1(alpha, hm, valid) + w.human_dice * L.dice(alpha * valid, hm * valid) + w.human_edge * L.edge(alpha, hm, band * valid)
             terms["alpha"] = _val(a)
             loss = loss + a
         loss = loss + self._human_regularisers(state, terms)
@@ -275,18 +279,21 @@ class Trainer:
             loss = loss + w.pose_refine_reg * self.human.pose_regularizer()
         return loss
 
-    def _object_motion_terms(self, rotation: bool, terms: dict) -> torch.Tensor:
+    def _object_motion_terms(self, polish: bool, terms: dict) -> torch.Tensor:
+        """Pose prior (translation + lambda_R rotation) over the training frames and
+        acceleration smoothness; `polish` (IV, VI) adds the rotation smoothness term."""
+        from cogs.geometry.rotations import quat_geodesic_angle
+
         w = self.cfg.weights
         o = self.object
         frames = torch.tensor(self.data.train)
         tr, q = o.pose(frames.float())
-        prior = w.pose_prior * (tr - o.prior_t[frames]).abs().sum(-1).mean()
+        loss = w.pose_prior * (tr - o.prior_t[frames]).abs().sum(-1).mean()
+        loss = loss + w.pose_prior_rotation * quat_geodesic_angle(q, o.prior_q[frames]).mean()
         acc, rot = o.smoothness_losses()
-        loss = prior + w.acceleration * acc
-        if rotation:
-            from cogs.geometry.rotations import quat_geodesic_angle
-
-            loss = loss + w.pose_prior_rotation * quat_geodesic_angle(q, o.prior_q[frames]).mean() + w.rotation_smoothness * rot
+        loss = loss + w.acceleration * acc
+        if polish:
+            loss = loss + w.rotation_smoothness * rot
         terms["motion"] = _val(loss)
         return loss
 
@@ -299,19 +306,25 @@ class Trainer:
         img, hm, om = d.images[t], d.human[t], d.object[t]
         fg = torch.clamp(hm + om, max=1.0)
         target = L.composite_over(img, fg, bg)
-        loss = w.object_rgb * L.photometric(out.rgb, target, w.l1, w.dssim)
-        terms["rgb"] = _val(loss)
         ao = out.branch_alpha["object"]
+        # The object covers a few hundred pixels: its image terms are measured on a padded
+        # box around it (mask or render), so that they are not diluted by the whole frame
+        # and outweighed by the pose prior.
+        y0, y1, x0, x1 = L.crop_box(om[..., 0] > 0.5, ao[..., 0].detach() > 0.05)
+        c = lambda x: x[y0:y1, x0:x1]  # noqa: E731
+        loss = w.object_rgb * L.photometric(c(out.rgb), c(target), w.l1, w.dssim)
+        terms["rgb"] = _val(loss)
         # Dice is unstable on a nearly hidden object (a handful of mask pixels): fade it in.
         dice_w = min(1.0, float(om.sum()) / 200.0)
-        sil = w.object_bce * L.bce(ao, om) + w.object_dice * dice_w * L.dice(ao, om)
+        sil = w.object_bce * L.bce(c(ao), c(om)) + w.object_dice * dice_w * L.dice(ao, om)
         terms["silhouette"] = _val(sil)
         loss = loss + sil
         if polish:
-            e = w.object_edge * L.edge(ao, om, d.object_band[t]) + w.object_unpremultiplied * L.unpremultiplied(out.rgb, out.alpha, img, om, bg)
+            e = (w.object_edge * L.edge(c(ao), c(om), c(d.object_band[t]))
+                 + w.object_unpremultiplied * L.unpremultiplied(c(out.rgb), c(out.alpha), c(img), c(om), bg))
             terms["edge"] = _val(e)
             loss = loss + e
-        loss = loss + self._object_motion_terms(rotation=polish, terms=terms)
+        loss = loss + self._object_motion_terms(polish=polish, terms=terms)
         self._last_render = ("human+object", out)
         return loss
 
@@ -328,7 +341,9 @@ class Trainer:
         terms["decomp"] = _val(dec)
         loss = loss + dec + self._human_regularisers(state, terms)
         if final and self.object is not None:
-            loss = loss + self._object_motion_terms(rotation=True, terms=terms)
+            # Full-frame image terms here: scale the motion prior by the object's share of
+            # the frame, keeping the prior-to-evidence balance of stages III-IV.
+            loss = loss + self._object_share * self._object_motion_terms(polish=True, terms=terms)
         if final and cfg.use_planes and frac >= w.plane_warmup_fraction and w.plane > 0:
             p = w.plane * self.scene_branch.plane_loss()
             terms["plane"] = _val(p)
@@ -400,8 +415,9 @@ class Trainer:
         terms: dict[str, float] = {}
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
+        aligning = self._aligning(name, frac)
         if name in ("I", "II"):
-            loss = self._human_terms(t, refine=name == "II", terms=terms)
+            loss = self._human_terms(t, refine=name == "II", terms=terms, align=aligning)
         elif name in ("III", "IV"):
             loss = self._object_terms(t, polish=name == "IV", terms=terms)
         else:
@@ -409,6 +425,10 @@ class Trainer:
         if not torch.isfinite(loss):
             raise FloatingPointError(f"stage {name} step {it} frame {t}: loss is {_val(loss)} ({terms})")
         loss.backward()
+        if aligning:  # pose alignment: only the pose corrections move
+            self._hold("human", keep=("pose", "transl"))
+        if name == "III" and frac < cfg.object_appearance_warmup:  # appearance first, trajectory held
+            self._hold("object", drop=("trajectory", "rotation"))
         self._density_statistics()
         for opt in self.optimizers.values():
             opt.step()
@@ -424,8 +444,29 @@ class Trainer:
         c["total"] = sum(c.values())
         return c
 
+    def _hold(self, branch: str, keep: tuple[str, ...] | None = None, drop: tuple[str, ...] = ()) -> None:
+        """Drop this step's gradients of a branch's parameter groups (Adam skips them)."""
+        for g in self.optimizers[branch].param_groups:
+            if (keep is not None and g["name"] not in keep) or g["name"] in drop:
+                for p in g["params"]:
+                    p.grad = None
+
+    def _aligning(self, name: str, frac: float) -> bool:
+        """Whether this step belongs to a pose-only alignment phase."""
+        if self.human is None or not self.human.cfg.refine_pose:
+            return False
+        return (name == "I" and frac < self.cfg.pose_warmup_fraction) or (name == "II" and frac < self.cfg.pose_realign_fraction)
+
     def _schedule_lr(self, name: str, frac: float) -> None:
-        """3DGS's exponential decay of the scene's position learning rate (x0.01)."""
+        """Pose corrections fast during the pose alignment; 3DGS's exponential decay of the
+        scene's position learning rate (x0.01)."""
+        if "human" in self.optimizers:
+            boost = self.cfg.pose_warmup_lr_scale if self._aligning(name, frac) else 1.0
+            for g in self.optimizers["human"].param_groups:
+                if g["name"] == "pose":
+                    g["lr"] = self.cfg.lr.human_pose * boost
+                elif g["name"] == "transl":
+                    g["lr"] = self.cfg.lr.human_transl * boost
         if "scene" not in self.optimizers:
             return
         if name == "V":
@@ -553,6 +594,17 @@ class Trainer:
             "stage_seconds": dict(self.state.stage_seconds),
             "n_gaussians": {k: v for k, v in self.counts().items() if k != "total"},
         }
+
+
+def _object_share(d: FrameData) -> float:
+    """Mean fraction of the frame the object's padded crop box covers (training frames)."""
+    fr = []
+    for t in d.train:
+        m = d.object[t, ..., 0] > 0.5
+        if bool(m.any()):
+            y0, y1, x0, x1 = L.crop_box(m, m)
+            fr.append((y1 - y0) * (x1 - x0) / (d.width * d.height))
+    return float(np.mean(fr)) if fr else 1.0
 
 
 def _val(x) -> float:
