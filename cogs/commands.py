@@ -156,7 +156,7 @@ class Demo:
         console.print(f"[green]done[/green] in {times['total']:.0f} s: {self.out / 'metrics.json'}, {html}")
         f, h, d = metrics["full"], metrics["human_crop"], metrics.get("decomposition") or {}
         console.print(f"full PSNR {f['psnr']:.2f} dB, SSIM {f['ssim']:.3f}; human-crop PSNR {h['psnr']:.2f} dB; "
-                      f"human IoU {d.get('human_iou')}, object IoU {d.get('object_iou')}", highlight=False)
+                      f"human IoU {_fmt(d.get('human_iou'))}, object IoU {_fmt(d.get('object_iou'))}", highlight=False)
         return 0
 
 
@@ -196,6 +196,10 @@ class RenderInit:
         write_image(self.out, np.concatenate(rows, axis=0))
         log.info("wrote %s", self.out)
         return 0
+
+
+def _fmt(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.3f}"
 
 
 ABLATIONS: dict[str, list[str]] = {

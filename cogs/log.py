@@ -57,6 +57,20 @@ def rate_text(done: int, started: float) -> str:
     return f"{r:6.2f} it/s" if r >= 1 else f"{1 / max(r, 1e-9):6.2f} s/it"
 
 
+def track(items, label: str, enabled: bool = True):
+    """Iterate `items` under a progress bar labelled `label` (rate, elapsed, time left)."""
+    items = list(items)
+    if not enabled or not items:
+        yield from items
+        return
+    started = time.perf_counter()
+    with progress() as p:
+        task = p.add_task(label, total=len(items), rate="", info="")
+        for i, x in enumerate(items):
+            yield x
+            p.update(task, advance=1, rate=rate_text(i + 1, started))
+
+
 @contextmanager
 def timed(label: str, into: dict | None = None):
     """Time a block; store seconds in `into[label]` when given."""

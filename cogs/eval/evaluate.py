@@ -22,6 +22,7 @@ import torch
 
 from cogs.data.io import read_json, write_image, write_json
 from cogs.eval.metrics import crop_to_mask, image_metrics, iou
+from cogs.log import track
 from cogs.geometry.rotations import quat_to_rotmat, rotmat_geodesic_angle
 
 log = logging.getLogger(__name__)
@@ -52,7 +53,8 @@ def render_frame(comp, scene, t: int, branches=None, viewmat=None, K=None):
         return comp.render(vm, KK, scene.width, scene.height, t, branches=branches, background=torch.zeros(3))
 
 
-def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose_fit_steps: int = 40) -> dict:
+def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose_fit_steps: int = 40,
+             show_progress: bool = True) -> dict:
     from cogs.train.trainer import load_run
 
     run = Path(run)
@@ -71,13 +73,15 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
         notes.append("no ground truth: crops use the input masks; novel views, decomposition and object pose error are null")
 
     rdir = out / "renders" if save_renders else None
-    strict = _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, rdir)
+    strict = _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, rdir,
+                            show_progress=show_progress)
     fitted = None
     if pose_fit_steps > 0 and comp.human is not None and comp.human.cfg.refine_pose:
         from cogs.eval.posefit import fit_pose
 
-        poses = {t: fit_pose(comp, scene, t, steps=pose_fit_steps) for t in test}
-        fitted = _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, None, poses)
+        poses = {t: fit_pose(comp, scene, t, steps=pose_fit_steps) for t in track(test, "eval: test-time pose fit", show_progress)}
+        fitted = _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, None, poses,
+                                "eval: frames with fitted poses", show_progress)
     full, hcrop, ocrop, h_iou, o_iou = strict
 
     metrics: dict = {
@@ -99,7 +103,7 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
             "human_iou": float(np.mean(h_iou)) if h_iou else None,
             "object_iou": float(np.mean(o_iou)) if o_iou else None,
         }
-        metrics["novel_view"] = _novel_views(comp, scene, notes, out if save_renders else None)
+        metrics["novel_view"] = _novel_views(comp, scene, notes, out if save_renders else None, show_progress)
         if scene.has_object and comp.object is not None:
             metrics["object_pose_error"] = _object_pose_error(comp.object, gt.object, test, list(scene.split["train"]))
     if fitted is not None:
@@ -122,12 +126,13 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
     return metrics
 
 
-def _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, rdir, poses=None):
+def _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, rdir, poses=None,
+                   label: str = "eval: held-out frames", show_progress: bool = True):
     """Per-frame metric rows over the held-out frames: (full, human crop, object crop,
     human IoU, object IoU). `poses` optionally overrides the human pose per frame."""
     gt = scene.gt
     full, hcrop, ocrop, h_iou, o_iou = [], [], [], [], []
-    for t in test:
+    for t in track(test, label, show_progress):
         vm = torch.as_tensor(scene.cameras.world_to_camera[t], dtype=torch.float32)
         K = torch.as_tensor(scene.cameras.K[t], dtype=torch.float32)
         hp = poses.get(t) if poses else None
@@ -171,13 +176,13 @@ def _summarise_notes(notes: list[str]) -> list[str]:
     return out
 
 
-def _novel_views(comp, scene, notes: list[str], out: Path | None) -> dict | None:
+def _novel_views(comp, scene, notes: list[str], out: Path | None, show_progress: bool = True) -> dict | None:
     nv = scene.gt.novel
     if nv is None or len(nv.frames) == 0:
         notes.append("novel_view: the scene has no novel-view ground truth")
         return None
     rows = []
-    for i, t in enumerate(nv.frames):
+    for i, t in track(enumerate(nv.frames), "eval: novel views", show_progress):
         r = render_frame(comp, scene, int(t), viewmat=nv.cameras.world_to_camera[i], K=nv.cameras.K[i])
         pred = r.rgb.clamp(0, 1).numpy()
         img = nv.images[i].astype(np.float32) / 255.0

@@ -580,7 +580,10 @@ class Trainer:
         np.random.set_state(rng["numpy"])
         random.setstate(rng["python"])
         self._planes_assigned = payload.get("planes_assigned", False)
-        log.info("resumed at stage %s step %d", names[min(self.state.stage, len(names) - 1)], self.state.step)
+        if self.state.stage >= len(names):
+            log.info("loaded the finished run (%d stages)", len(names))
+        else:
+            log.info("resumed at stage %s step %d", names[self.state.stage], self.state.step)
 
     # -- outputs ------------------------------------------------------------------------------------
     def _export(self) -> None:
