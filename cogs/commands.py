@@ -228,14 +228,14 @@ class Ablate:
         from cogs.data.validate import check_scene
         from cogs.eval.ablation import run_ablation
 
+        unknown = set(self.only) - set(ABLATIONS)
+        if unknown:  # before any work
+            raise UserError(f"unknown ablation(s) {sorted(unknown)}; known: {list(ABLATIONS)}")
+        variants = {k: v for k, v in ABLATIONS.items() if not self.only or k in self.only}
         scene = self.scene
         if scene is None:
             scene = self.out / "scene"
             if not ((scene / "scene.json").exists() and not check_scene(scene)):
                 _synthesize(scene, preview=False)
-        variants = {k: v for k, v in ABLATIONS.items() if not self.only or k in self.only}
-        unknown = set(self.only) - set(ABLATIONS)
-        if unknown:
-            raise UserError(f"unknown ablation(s) {sorted(unknown)}; known: {list(ABLATIONS)}")
         run_ablation(scene, self.out, self.preset, variants)
         return 0

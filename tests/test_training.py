@@ -143,3 +143,10 @@ def test_checkpoints_load_without_unpickling_code(small_synthetic, tmp_path):
     assert "branches" in raw
     cfg = apply_overrides(quick_config(), TINY)
     assert cfg.schedule.I == 6
+
+
+def test_unknown_ablation_is_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "abl"
+    assert main(["ablate", "--out", str(out), "--only", "no such component"]) == 2
+    assert "unknown ablation(s) ['no such component']" in capsys.readouterr().err
+    assert not out.exists()  # no scene synthesized, no run started
