@@ -317,3 +317,30 @@ def test_image_metrics_reports_null_with_notes_for_tiny_crops(no_lpips_weights, 
     out = image_metrics(rng.random((8, 30, 3)), rng.random((8, 30, 3)), notes=notes)
     assert out["ssim"] is None and out["lpips"] is None
     assert len(notes) == 2
+
+
+def test_unavailable_lpips_is_explained_once_not_per_section():
+    from cogs.eval.evaluate import _summarise_notes
+
+    reason = "lpips is null: AlexNet backbone weights not found: looked for X"
+    notes = [reason, reason, "full.lpips: not computable (unavailable for every frame)",
+             "test_time_pose_fit.human_crop.lpips: not computable (unavailable for every frame)",
+             "lpips is null: image 9x9 is smaller than 16", "ssim is null: image 5x5 is smaller than 7"]
+    out = _summarise_notes(notes)
+    assert out.count(reason) == 1
+    assert not any("not computable" in n for n in out)
+    assert "lpips is null in every section (the reason above)" in out
+    assert not any(n.startswith("lpips is null for") for n in out)  # no crop-size fold for it
+    assert any(n.startswith("ssim is null for 1 crop(s)") for n in out)
+
+
+def test_report_table_keeps_the_test_time_pose_fit_apart():
+    from cogs.eval.report import metrics_table
+
+    m = {"full": {"psnr": 30.0, "ssim": 0.9, "lpips": None},
+         "test_time_pose_fit": {"steps": 40, "full": {"psnr": 31.0, "ssim": 0.95, "lpips": None},
+                                "decomposition": {"human_iou": 0.86, "object_iou": None}}}
+    rows = dict(metrics_table(m))
+    assert rows["full"].startswith("psnr 30.00")
+    assert rows["with test-time pose fit (40 steps): full"].startswith("psnr 31.00")
+    assert "human_iou 0.8600" in rows["with test-time pose fit (40 steps): decomposition"]

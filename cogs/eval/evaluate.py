@@ -169,7 +169,13 @@ def _summarise_notes(notes: list[str]) -> list[str]:
 
     small = [n for n in notes if re.match(r"(lpips|ssim) is null: image \d+x\d+ is smaller", n)]
     out = sorted(set(n for n in notes if n not in small))
-    for metric in ("lpips", "ssim"):
+    metrics = ("lpips", "ssim")
+    if any(n.startswith("lpips is null: ") and "smaller" not in n for n in out):
+        # LPIPS is unavailable altogether: one line says why, not one per section and crop.
+        out = [n for n in out if not re.match(r"[\w.]*lpips: not computable", n)]
+        out.append("lpips is null in every section (the reason above)")
+        metrics = ("ssim",)
+    for metric in metrics:
         k = sum(1 for n in small if n.startswith(metric))
         if k:
             out.append(f"{metric} is null for {k} crop(s) smaller than its window (small objects); the crop means use the others")

@@ -170,6 +170,13 @@ def metrics_table(m: dict) -> list[tuple[str, str]]:
         g = m.get(group)
         if isinstance(g, dict):
             rows.append((group, ", ".join(f"{k} {_fmt(v)}" for k, v in g.items())))
+    fit = m.get("test_time_pose_fit")
+    if isinstance(fit, dict):  # a separate protocol: it looks at the test images
+        for group in ("full", "human_crop", "object_crop", "decomposition"):
+            g = fit.get(group)
+            if isinstance(g, dict):
+                rows.append((f"with test-time pose fit ({fit.get('steps')} steps): {group}",
+                             ", ".join(f"{k} {_fmt(v)}" for k, v in g.items())))
     rows.append(("train seconds", _fmt(m.get("train_seconds"))))
     if m.get("stage_seconds"):
         rows.append(("stage seconds", ", ".join(f"{k} {v:.0f}" for k, v in m["stage_seconds"].items())))
