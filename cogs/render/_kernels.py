@@ -88,6 +88,21 @@ def _power(mx, my, a, b, c, px, py):
     return -_HALF * (a * dx * dx + c * dy * dy) - b * dx * dy
 
 
+@njit(**_OPTS)
+def _composite(mx, my, a, b, c, o, px, py, Tp, last, j):
+    """One Gaussian-pixel pair of the forward: (weight alpha T, new T, new last). An open
+    pixel has T > 0; a closed one holds -T_final and is left as it is."""
+    power = _power(mx, my, a, b, c, px, py)
+    alpha = min(ALPHA_MAX, o * _exp_neg(power))
+    next_T = Tp * (_ONE - alpha)
+    ok = (power <= _ZERO) & (alpha >= ALPHA_MIN)
+    contrib = ok & (next_T >= T_MIN)
+    stop = ok & (next_T < T_MIN)  # also true for closed pixels (next_T <= 0)
+    w = alpha * Tp if contrib else _ZERO
+    T = next_T if contrib else (-abs(Tp) if stop else Tp)
+    return w, T, (j if contrib else last)
+
+
 @njit(cache=True, nogil=True)
 def depth_order(depths):
     """Stable front-to-back order of float32 depths (ties by index), as
@@ -263,18 +278,26 @@ def _forward_tile(t, offsets, ids, means2d, conics, opacities, features, spans, 
         lo = np.uint64(r0 * TILE)
         hi = np.uint64(r1 * TILE)
         jj = np.int32(j)
-        for q in range(lo, hi):
-            power = _power(mx, my, a, b, c, pxc[q], pyc[q])
-            alpha = min(ALPHA_MAX, o * _exp_neg(power))
-            Tp = T[q]
-            next_T = Tp * (_ONE - alpha)
-            ok = (power <= _ZERO) & (alpha >= ALPHA_MIN)
-            contrib = ok & (next_T >= T_MIN)
-            stop = ok & (next_T < T_MIN)  # also true for closed pixels (next_T <= 0)
-            wbuf[q] = alpha * Tp if contrib else _ZERO
-            T[q] = next_T if contrib else (-abs(Tp) if stop else Tp)
-            last[q] = jj if contrib else last[q]
-        for f in range(0, F, 4):  # channels in blocks of 4 (F is padded to a multiple of 4)
+        if F == 4:
+            # RGB + depth, the common case: weights and accumulation in one pass, 10-14 %
+            # faster than the two passes below (pixel forward alone, one thread; fusing the
+            # backward's three passes the same way measured 4-8 % slower, so it stays).
+            f0 = features[g, 0]
+            f1 = features[g, 1]
+            f2 = features[g, 2]
+            f3 = features[g, 3]
+            for q in range(lo, hi):
+                wq, T[q], last[q] = _composite(mx, my, a, b, c, o, pxc[q], pyc[q], T[q], last[q], jj)
+                acc[q] += wq * f0
+                acc[np.uint64(TILE_PIX) + q] += wq * f1
+                acc[np.uint64(2 * TILE_PIX) + q] += wq * f2
+                acc[np.uint64(3 * TILE_PIX) + q] += wq * f3
+            F_done = 4
+        else:
+            for q in range(lo, hi):
+                wbuf[q], T[q], last[q] = _composite(mx, my, a, b, c, o, pxc[q], pyc[q], T[q], last[q], jj)
+            F_done = 0
+        for f in range(F_done, F, 4):  # channels in blocks of 4 (F is padded to a multiple of 4)
             f0 = features[g, f]
             f1 = features[g, f + 1]
             f2 = features[g, f + 2]
