@@ -292,26 +292,24 @@ def _forward_tile(t, offsets, ids, means2d, conics, opacities, features, spans, 
                 acc[np.uint64(TILE_PIX) + q] += wq * f1
                 acc[np.uint64(2 * TILE_PIX) + q] += wq * f2
                 acc[np.uint64(3 * TILE_PIX) + q] += wq * f3
-            F_done = 4
         else:
             for q in range(lo, hi):
                 wbuf[q], T[q], last[q] = _composite(mx, my, a, b, c, o, pxc[q], pyc[q], T[q], last[q], jj)
-            F_done = 0
-        for f in range(F_done, F, 4):  # channels in blocks of 4 (F is padded to a multiple of 4)
-            f0 = features[g, f]
-            f1 = features[g, f + 1]
-            f2 = features[g, f + 2]
-            f3 = features[g, f + 3]
-            o0 = np.uint64(f * TILE_PIX)
-            o1 = o0 + np.uint64(TILE_PIX)
-            o2 = o1 + np.uint64(TILE_PIX)
-            o3 = o2 + np.uint64(TILE_PIX)
-            for q in range(lo, hi):
-                wq = wbuf[q]
-                acc[o0 + q] += wq * f0
-                acc[o1 + q] += wq * f1
-                acc[o2 + q] += wq * f2
-                acc[o3 + q] += wq * f3
+            for f in range(0, F, 4):  # channels in blocks of 4 (F is padded to a multiple of 4)
+                f0 = features[g, f]
+                f1 = features[g, f + 1]
+                f2 = features[g, f + 2]
+                f3 = features[g, f + 3]
+                o0 = np.uint64(f * TILE_PIX)
+                o1 = o0 + np.uint64(TILE_PIX)
+                o2 = o1 + np.uint64(TILE_PIX)
+                o3 = o2 + np.uint64(TILE_PIX)
+                for q in range(lo, hi):
+                    wq = wbuf[q]
+                    acc[o0 + q] += wq * f0
+                    acc[o1 + q] += wq * f1
+                    acc[o2 + q] += wq * f2
+                    acc[o3 + q] += wq * f3
         if ((j - start) & 15) == 15:
             n_open = 0
             for q in range(np.uint64(0), np.uint64(TILE_PIX)):
