@@ -77,6 +77,20 @@ def test_cpu_gradients_match_torch_reference(n, width, height, channels):
     assert rel <= 1e-3, f"means2d: relative gradient error {rel:.2e}"
 
 
+def test_cpu_background_gradient_matches_torch_reference():
+    # The background's gradient comes from the per-pixel finish (colour = sum + (1 - alpha)
+    # bg), summed over every pixel; a learnable background (the scene branch's) uses it.
+    scene = random_scene(300, 41, 30, channels=3, seed=21)
+    grads = {}
+    for backend in ("torch", "cpu"):
+        bg = torch.rand(3, generator=torch.Generator().manual_seed(5)).requires_grad_(True)
+        _render(scene, backend, grad=True, background=bg)
+        grads[backend] = bg.grad
+    assert grads["cpu"] is not None and torch.isfinite(grads["cpu"]).all()
+    rel = ((grads["cpu"] - grads["torch"]).norm() / grads["torch"].norm()).item()
+    assert rel <= 1e-4, f"background: relative gradient error {rel:.2e}"
+
+
 def test_cpu_gradients_match_torch_on_a_dense_splat_scene():
     scene = splat_scene(2500, 40, 33, channels=3, seed=4)
     ref, g_ref = _render(scene, "torch", grad=True)
