@@ -251,25 +251,27 @@ def test_hand_regions_cover_the_fingers_but_not_the_forearm_far_away():
     assert not hand_regions(kp, (120, 160)).any()
 
 
-def _held_object_clip(T=8, H=180, W=200, new_face_from=None, hidden=(), speed=9, decoy=None):
+def _held_object_clip(T=8, H=180, W=200, new_face_from=None, hidden=(), speed=9, decoy=None, pan=0):
     """A textured background with a blue strip at the bottom, an arm (person) reaching in
     from the left, its hand holding an orange square by the left side and carrying it to
     the right (``speed`` pixels a frame); from frame ``new_face_from`` on the square shows
     another face, blue (the strip's colour) with yellow stripes; in ``hidden`` frames it
     is out of view. MediaPipe-like, the person mask holds the arm but misses the
     fingers. ``decoy`` (x, y): a green square of the object's size painted on the
-    background there."""
-    bg = (_texture(H, W, seed=6) // 3 + 100).astype(np.uint8)
-    bg[150:] = (40, 60, 200)
+    background there. ``pan``: the camera turns so the background slides ``pan`` pixels
+    a frame to the left (the person and the object move in the image as before)."""
+    Wb = W + pan * T
+    big = (_texture(H, Wb, seed=6) // 3 + 100).astype(np.uint8)
+    big[150:] = (40, 60, 200)
     if decoy is not None:
-        bg[_square(H, W, *decoy, 14)] = (40, 170, 60)
+        big[_square(H, Wb, *decoy, 14)] = (40, 170, 60)
     yy, xx = np.mgrid[:H, :W]
     images, obj, hands_gt, person = [], [], [], []
     wrists = []
     for t in range(T):
         wx, wy = 40 + speed * t, 70
         wrists.append((wx, wy))
-        im = bg.copy()
+        im = big[:, pan * t : pan * t + W].copy()
         om = _square(H, W, wx + 24, wy, 14) if t not in hidden else np.zeros((H, W), bool)
         if new_face_from is not None and t >= new_face_from:
             im[om] = (40, 60, 200)
@@ -349,6 +351,22 @@ def test_the_hand_cue_invents_nothing_once_the_object_is_gone():
     images, gt, _, person, kp = _held_object_clip(T=9, hidden=tuple(range(3, 9)), speed=14, decoy=(125, 70))
     masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp)
     assert not masks[3:].any() and (conf[3:] == 0).all()
+
+
+def test_a_patch_of_background_beside_the_hand_is_told_from_a_carried_object():
+    # The hand cue's guard: with the camera panning, a background patch (the decoy) is
+    # what the previous frame showed there once the background's motion is undone; the
+    # carried object, which moved with the hand, is not.
+    from cogs.preprocess.tracking import _Tracker
+
+    pan, t = 5, 4
+    images, gt, _, person, kp = _held_object_clip(T=6, speed=14, decoy=(150, 120), pan=pan)
+    tracker = _Tracker(images, gt[0], 0, person, kp, 0.5, 0.1, 0.5, 4)
+    H, W = gt.shape[1:]
+    decoy_now = _square(H, W, 150 - pan * t, 120, 14)
+    assert (images[t][decoy_now] == (40, 170, 60)).all()
+    assert tracker._unchanged(t, t - 1, decoy_now)
+    assert not tracker._unchanged(t, t - 1, gt[t])
 
 
 @pytest.mark.parametrize("box, frame, message", [

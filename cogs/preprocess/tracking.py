@@ -16,8 +16,10 @@ the first of three cues that holds (``_Tracker._step``):
    GrabCut seeded there (a fast or reappearing object: a bounced ball);
 3. **hand**: an object seen carried by a hand is segmented next to that hand, off the
    person (``segment.grabcut_at_hand``), for a few frames after it was lost: a handled
-   object that turns shows faces no colour model has seen. Such a find is tentative
-   until the next frame sees it move with the hand.
+   object that turns shows faces no colour model has seen. The find must differ from
+   the previous frame with the background's motion undone (``_Tracker._unchanged``: a
+   patch of background beside the hand does not), and it is tentative until the next
+   frame sees it move with the hand.
 
 Otherwise the object is hidden and the frame's mask is empty. Then every run of empty
 frames that ends where the object was found again is tracked back into from there.
@@ -591,6 +593,32 @@ class _Tracker:
         m0_bg = cv2.dilate(m0_bg, np.ones((5, 5), np.uint8)) > 0
         return bool((m1 & m0_bg).sum() < 0.9 * m1.sum())
 
+    def _unchanged(self, t: int, t_prev: int, mask: np.ndarray) -> bool:
+        """Whether the pixels under ``mask`` in frame t are static background: frame
+        t_prev, warped onto frame t by the background's motion, shows the same there
+        (a carried object has moved in, so it differs; a patch of wall beside the hand
+        does not, beyond what the warp leaves on the background around it)."""
+        import cv2
+
+        if not 0 <= t_prev < len(self.images):
+            return False
+        H, W = mask.shape
+        near = cv2.dilate(mask.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+        static = ~near
+        if self.human_probs is not None:
+            static &= (self.human_probs[t] <= 127) & (self.human_probs[t_prev] <= 127)
+        Hm = self.bank.background_motion(t_prev, t, static)
+        if Hm is None:
+            return False
+        prev = cv2.warpPerspective(self.images[t_prev], Hm, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        diff = np.abs(self.images[t].astype(np.int16) - prev.astype(np.int16)).mean(-1)
+        _, s = mask_stats(mask)
+        r = max(5, int(0.5 * float(s.max())))
+        ring = (cv2.dilate(mask.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0) & static
+        if ring.sum() < 0.5 * mask.sum():
+            return False  # too little background around to calibrate on
+        return bool(np.median(diff[mask]) <= max(6.0, 2.0 * np.median(diff[ring])))
+
     # -- one frame --------------------------------------------------------------------
 
     def _step(self, t: int, st: _State, direction: int, model: ColourModel) -> _Found:
@@ -628,6 +656,11 @@ class _Tracker:
             # keeping most of what it had (a turning object shows new faces gradually; a
             # fit that slid onto a hand or the background loses it at once) ...
             looks = found.colour >= self.min_score * self.ref_score or found.colour >= 0.6 * st.colour
+            # A hand find awaiting confirmation shows a face no colour model knows: the
+            # confirmation (carried by that hand, not staying with the background) judges
+            # it, except for the placement the hand itself made, which moves with the
+            # hand by construction.
+            looks = looks or (st.pending is not None and found.cue != "carried")
             # ... and no clearly better-looking place elsewhere (the fit held on to a
             # look-alike while the object moved away, e.g. a hand after a bounce).
             centre, score, _ = locate(prob_search, st, hands_t, floor)
@@ -660,7 +693,8 @@ class _Tracker:
         if st.carried >= 2 and _visible(self.hands, t, h):
             seg = grabcut_at_hand(rgb, self.hands[t, h, :2], float(np.sqrt(st.area)), hp)
             visible = seg & ~hands
-            if 0.4 * st.area <= visible.sum() <= 2.5 * st.area and solidity(seg) >= 0.8:
+            if (0.4 * st.area <= visible.sum() <= 2.5 * st.area and solidity(seg) >= 0.8
+                    and not self._unchanged(t, t - direction, visible)):
                 return _Found(visible, visible, 0.3, "hand", colour_of(visible))
         empty = np.zeros((H, W), bool)
         return _Found(empty, empty)
