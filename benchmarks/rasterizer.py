@@ -15,7 +15,10 @@ sum over 16x16 tiles of (Gaussians whose 3-sigma square touches the tile) x (pix
 tile). The numba kernels evaluate far fewer pairs (support boxes, early termination); the
 pairs/s figures count the reference's pairs so both backends are measured in one unit.
 
-Timings are medians; "fwd" is the forward call with grad-enabled inputs (as in training),
+Timings are medians; fwd+bwd also reports its minimum (``fwd_bwd_min_ms``) and the
+speed-up of the minima, a steadier estimate of the work itself on a shared machine,
+where other tenants stretch individual repeats by up to ~40 %; the bar ("met") is judged
+on the medians. "fwd" is the forward call with grad-enabled inputs (as in training),
 "fwd_bwd" is forward + backward with fixed random upstream gradients on colour, alpha and
 depth (torch.autograd.backward), down to the leaf parameters' .grad.
 """
@@ -38,13 +41,17 @@ def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def median_ms(fn, repeats: int) -> float:
+def times_ms(fn, repeats: int) -> list[float]:
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
         fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times)
+        times.append(1e3 * (time.perf_counter() - t0))
+    return times
+
+
+def median_ms(fn, repeats: int) -> float:
+    return statistics.median(times_ms(fn, repeats))
 
 
 def matmul_gflops(n: int = 2048, repeats: int = 5) -> float:
@@ -212,10 +219,12 @@ def main() -> None:
                 r = reps if name == "cpu" else torch_reps
                 case.run(name, True)  # warm caches / allocator
                 fwd = median_ms(lambda: case.run(name, False), r)
-                fb = median_ms(lambda: case.run(name, True), r)
+                fb_all = times_ms(lambda: case.run(name, True), r)
+                fb = statistics.median(fb_all)
                 row[name] = {
                     "fwd_ms": round(fwd, 2),
                     "fwd_bwd_ms": round(fb, 2),
+                    "fwd_bwd_min_ms": round(min(fb_all), 2),
                     "fwd_mpairs_per_s": round(pairs / fwd / 1e3, 1),
                     "fwd_bwd_mpairs_per_s": round(pairs / fb / 1e3, 1),
                 }
@@ -227,6 +236,7 @@ def main() -> None:
                 row["speedup_cpu_over_torch"] = {
                     "fwd": round(row["torch"]["fwd_ms"] / row["cpu"]["fwd_ms"], 1),
                     "fwd_bwd": round(row["torch"]["fwd_bwd_ms"] / row["cpu"]["fwd_bwd_ms"], 1),
+                    "fwd_bwd_of_minima": round(row["torch"]["fwd_bwd_min_ms"] / row["cpu"]["fwd_bwd_min_ms"], 1),
                 }
             row["cpu_profile_ms"] = cpu_profile(case, reps)
             cases.append(row)
@@ -235,7 +245,9 @@ def main() -> None:
     if bar is not None and "speedup_cpu_over_torch" in bar:
         sp = bar["speedup_cpu_over_torch"]["fwd_bwd"]
         mp = bar["cpu"]["fwd_bwd_mpairs_per_s"]
-        result["bar_256x192_20k"] = {"speedup_fwd_bwd": sp, "required_speedup": 30,
+        result["bar_256x192_20k"] = {"speedup_fwd_bwd": sp,
+                                     "speedup_fwd_bwd_of_minima": bar["speedup_cpu_over_torch"]["fwd_bwd_of_minima"],
+                                     "required_speedup": 30,
                                      "cpu_fwd_bwd_mpairs_per_s": mp, "required_mpairs_per_s": 100,
                                      "met": bool(sp >= 30 and mp >= 100)}
     result["load_avg_end"] = [round(x, 2) for x in os.getloadavg()]
