@@ -543,11 +543,13 @@ def finish_forward(feat, T_final, D, bg):
 
 
 @njit(cache=True, nogil=True)
-def start_backward(g_img, g_alpha, g_depth, T_final, zsum, bg, F):
-    """The upstream gradients of colours [H, W, D], alpha [H, W, 1] and depth [H, W, 1]
-    -> (gradient of the composited features [H, W, F] (colours, depth sum, zero padding),
-    of the accumulated alpha [H, W], of the background [D] (float64 sums))."""
+def start_backward(g_img, g_alpha, g_depth, T_final, feat, bg):
+    """The upstream gradients of colours [H, W, D], alpha [H, W, 1] and depth [H, W, 1],
+    given the forward's composited features ``feat`` [H, W, F] (depth sum in channel D)
+    -> (gradient of those features [H, W, F] (colours, depth sum, zero padding), of the
+    accumulated alpha [H, W], of the background [D] (float64 sums))."""
     H, W, D = g_img.shape
+    F = feat.shape[2]
     grad_feat = np.zeros((H, W, F), np.float32)
     g_a = np.empty((H, W), np.float32)
     g_bg = np.zeros(bg.shape[0], np.float64)
@@ -565,6 +567,6 @@ def start_backward(g_img, g_alpha, g_depth, T_final, zsum, bg, F):
             if a > _ZERO:  # depth = zsum / alpha
                 gd = g_depth[y, x, 0]
                 grad_feat[y, x, D] = gd / a
-                ga -= gd * zsum[y, x] / (a * a)
+                ga -= gd * feat[y, x, D] / (a * a)
             g_a[y, x] = ga
     return grad_feat, g_a, g_bg

@@ -86,7 +86,7 @@ class _Rasterize(torch.autograd.Function):
         feat, T_final, last = _kernels.forward(*geometry)
         bg = _NO_BG if background is None else _np32(background)
         img, alpha, depth = _kernels.finish_forward(feat, T_final, D, bg)
-        ctx.kernel_state = (geometry, T_final, last, np.ascontiguousarray(feat[..., D]), bg, fe.shape[1])
+        ctx.kernel_state = (geometry, T_final, last, feat, bg)
         ctx.like = (means2d, conics, opacities, colors, depths, background)
         to = dict(device=colors.device, dtype=colors.dtype)
         return (torch.from_numpy(img).to(**to), torch.from_numpy(alpha).to(**to),
@@ -94,9 +94,9 @@ class _Rasterize(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_img, g_alpha, g_depth):
-        geometry, T_final, last, zsum, bg, F = ctx.kernel_state
+        geometry, T_final, last, feat, bg = ctx.kernel_state
         grad_feat, g_a, g_bg = _kernels.start_backward(_np32(g_img), _np32(g_alpha), _np32(g_depth),
-                                                       T_final, zsum, bg, F)
+                                                       T_final, feat, bg)
         D = g_img.shape[-1]
         g_bg = None if ctx.like[5] is None else g_bg.astype(np.float32)
         ids, n = geometry[1], geometry[2].shape[0]
