@@ -569,6 +569,17 @@ class _Tracker:
         self.bank.add(t, f.visible)
         return self._adapted(t, f.visible)
 
+    def _background_off(self, mask: np.ndarray, frames: tuple[int, ...]) -> np.ndarray:
+        """Pixels that can only be static scene: away from ``mask`` (7 px and more) and off
+        the person in each of ``frames`` -> [H, W] bool."""
+        import cv2
+
+        static = ~(cv2.dilate(mask.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0)
+        if self.human_probs is not None:
+            for t in frames:
+                static &= self.human_probs[t] <= 127
+        return static
+
     def _confirms_carry(self, t0: int, t1: int, m0: np.ndarray, m1: np.ndarray, hand: int) -> bool:
         """Whether the object the hand cue found in frame t0 (``m0``), found again in frame
         t1 (``m1``), is carried by ``hand``: touching it and moving with it (loosely: an
@@ -580,10 +591,7 @@ class _Tracker:
 
         if carrying_hand(self.hands, t0, t1, m0, m1, touch=0.35, moved_max=0.6) != hand:
             return False
-        static0 = ~(cv2.dilate(m0.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0)
-        if self.human_probs is not None:
-            static0 &= self.human_probs[t0] <= 127
-        Hm = self.bank.background_motion(t0, t1, static0)
+        Hm = self.bank.background_motion(t0, t1, self._background_off(m0, (t0,)))
         if Hm is None:
             return True
         # Where m0 would be had it stayed with the background; m1 (partly hidden by the
@@ -603,10 +611,7 @@ class _Tracker:
         if not 0 <= t_prev < len(self.images):
             return False
         H, W = mask.shape
-        near = cv2.dilate(mask.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
-        static = ~near
-        if self.human_probs is not None:
-            static &= (self.human_probs[t] <= 127) & (self.human_probs[t_prev] <= 127)
+        static = self._background_off(mask, (t, t_prev))
         Hm = self.bank.background_motion(t_prev, t, static)
         if Hm is None:
             return False
