@@ -2,8 +2,8 @@
 backward, for the CPU backend.
 
 The torch version is ~100 small tensor ops whose launch overhead and autograd bookkeeping
-cost more than the whole pixel pass at training sizes; here one pass per Gaussian does the
-same math in float64 registers. Same semantics (see projection.py); parity with the torch
+cost more than the whole pixel pass at training sizes; here one loop over the Gaussians does
+the same math in float64, vectorised across Gaussians (see ``_BLOCK``). Same semantics (see projection.py); parity with the torch
 version and with autograd is tested.
 
 Gradients: means2d, conics and depths flow back to means, quats and scales. A culled
@@ -22,21 +22,27 @@ import torch
 from numba import njit
 from torch import Tensor
 
-from cogs.render._kernels import MIN_CHUNK_N
 from cogs.render._threads import parallel_for
 from cogs.render.projection import EPS2D, Projected, _MAX_RADIUS
 
 _QUAT_EPS = 1e-12  # as cogs.geometry.rotations.quat_normalize
 
+# The per-Gaussian helpers are inlined into the loops by numba itself (as separate
+# functions they stay calls, which LLVM cannot vectorise) and, like the loops, use numpy's
+# error model: a division by zero gives inf/nan (guarded against by the math) instead of a
+# branch to a Python exception in every iteration.
+_LOOP = dict(cache=True, nogil=True, error_model="numpy")
+_INLINE = dict(_LOOP, inline="always")
 
-@njit(cache=True, nogil=True)
+
+@njit(**_INLINE)
 def _rotmat(qw, qx, qy, qz):
     return (1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy),
             2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx),
             2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
 
 
-@njit(cache=True, nogil=True)
+@njit(**_INLINE)
 def _unit_quat(q0, q1, q2, q3):
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     if n > _QUAT_EPS:
@@ -53,7 +59,7 @@ def camera_tuple(V: np.ndarray, K: np.ndarray, width, height, near, far, eps2d) 
         float(height), float(near), float(far), float(eps2d))
 
 
-@njit(cache=True, nogil=True)
+@njit(**_INLINE)
 def _screen_terms(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam):
     """Everything the forward and backward share for one Gaussian (scalars only)."""
     (V00, V01, V02, V03, V10, V11, V12, V13, V20, V21, V22, V23,
@@ -100,7 +106,7 @@ def _screen_terms(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam):
             (qw, qx, qy, qz, qn), a, b, c, det, ok)
 
 
-@njit(cache=True, nogil=True)
+@njit(**_INLINE)
 def _forward_one(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam):
     """-> (means2d x, y, depth, conic a, b, c, radius)"""
     (x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free, A, M, B, R, q,
@@ -119,31 +125,63 @@ def _forward_one(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam):
     return mx, my, z, c / ds, -b / ds, a / ds, radius
 
 
-@njit(cache=True, nogil=True)
+# The loops over Gaussians run in blocks of _BLOCK: the inputs are gathered into one flat
+# structure-of-arrays float64 buffer (row c of Gaussian k at c * _BLOCK + k) and the results
+# written to another. With one buffer read and one written at constant row distances, LLVM
+# needs a single runtime overlap check and vectorises the per-Gaussian math across Gaussians
+# (8 float64 lanes with AVX-512); reading the [N, 3] / [N, 4] inputs directly, it needs one
+# check per pair of arrays and gives up (0.9 -> 0.35 ms forward for 20k Gaussians).
+_BLOCK = 128
+# Gaussians per thread's work item: vectorised, a pass costs ~20 ns (forward) to ~35 ns
+# (backward) per Gaussian, so a second thread pays only from ~30k Gaussians on (at 20k
+# two threads measured 0.6 / 1.1 ms against 0.45 / 0.9 ms serially, in a training step).
+_MIN_CHUNK = 16384
+
+
+@njit(**_INLINE)
+def _gather(b0, n, means, quats, scales, P):
+    """Gaussians b0..b0+n-1 into rows 0-9 of P: mean xyz, quat wxyz, scale xyz."""
+    for k in range(n):
+        i = b0 + k
+        for c in range(3):
+            P[c * _BLOCK + k] = means[i, c]
+            P[(7 + c) * _BLOCK + k] = scales[i, c]
+        for c in range(4):
+            P[(3 + c) * _BLOCK + k] = quats[i, c]
+
+
+@njit(**_LOOP)
 def _forward_range(lo, hi, means, quats, scales, cam, means2d, conics, depths, radii):
-    for i in range(lo, hi):
-        mx, my, z, ca, cb, cc, r = _forward_one(
-            float(means[i, 0]), float(means[i, 1]), float(means[i, 2]),
-            float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3]),
-            float(scales[i, 0]), float(scales[i, 1]), float(scales[i, 2]), cam)
-        means2d[i, 0] = mx
-        means2d[i, 1] = my
-        depths[i] = z
-        conics[i, 0] = ca
-        conics[i, 1] = cb
-        conics[i, 2] = cc
-        radii[i] = r
+    P = np.empty(10 * _BLOCK)
+    O = np.empty(7 * _BLOCK)
+    B = np.uint64(_BLOCK)
+    for b0 in range(lo, hi, _BLOCK):
+        n = min(_BLOCK, hi - b0)
+        _gather(b0, n, means, quats, scales, P)
+        for k in range(np.uint64(0), np.uint64(n)):
+            (O[k], O[B + k], O[2 * B + k], O[3 * B + k], O[4 * B + k], O[5 * B + k],
+             O[6 * B + k]) = _forward_one(P[k], P[B + k], P[2 * B + k], P[3 * B + k],
+                                          P[4 * B + k], P[5 * B + k], P[6 * B + k],
+                                          P[7 * B + k], P[8 * B + k], P[9 * B + k], cam)
+        for k in range(n):
+            i = b0 + k
+            means2d[i, 0] = O[k]
+            means2d[i, 1] = O[_BLOCK + k]
+            depths[i] = O[2 * _BLOCK + k]
+            for c in range(3):
+                conics[i, c] = O[(3 + c) * _BLOCK + k]
+            radii[i] = np.int32(O[6 * _BLOCK + k])
 
 
 def project_forward(means, quats, scales, cam):
     n = means.shape[0]
     out = (np.empty((n, 2), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
            np.zeros(n, np.int32))
-    parallel_for(_forward_range, n, means, quats, scales, cam, *out, min_chunk=MIN_CHUNK_N)
+    parallel_for(_forward_range, n, means, quats, scales, cam, *out, min_chunk=_MIN_CHUNK)
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(**_INLINE)
 def _backward_one(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam, gmx, gmy, g0, g1, g2, gd):
     """Upstream (means2d, conic, depth) grads -> (mean xyz, quat wxyz, scale xyz) grads."""
     (x, y, z, zs, in_depth, u, v, uc, vc, u_free, v_free, A, M, B, R, q,
@@ -230,28 +268,43 @@ def _backward_one(m0, m1, m2, q0, q1, q2, q3, s0, s1, s2, cam, gmx, gmy, g0, g1,
     return vm0, vm1, vm2, vq0, vq1, vq2, vq3, vs0, vs1, vs2
 
 
-@njit(cache=True, nogil=True)
+@njit(**_LOOP)
 def _backward_range(lo, hi, means, quats, scales, cam, v_means2d, v_conics, v_depths, v_means,
                     v_quats, v_scales):
-    for i in range(lo, hi):
-        g = _backward_one(
-            float(means[i, 0]), float(means[i, 1]), float(means[i, 2]),
-            float(quats[i, 0]), float(quats[i, 1]), float(quats[i, 2]), float(quats[i, 3]),
-            float(scales[i, 0]), float(scales[i, 1]), float(scales[i, 2]), cam,
-            float(v_means2d[i, 0]), float(v_means2d[i, 1]), float(v_conics[i, 0]),
-            float(v_conics[i, 1]), float(v_conics[i, 2]), float(v_depths[i]))
-        for k in range(3):
-            v_means[i, k] = g[k]
-            v_scales[i, k] = g[7 + k]
-        for k in range(4):
-            v_quats[i, k] = g[3 + k]
+    P = np.empty(16 * _BLOCK)  # rows 10-15: upstream gradients of means2d xy, conic abc, depth
+    O = np.empty(10 * _BLOCK)
+    B = np.uint64(_BLOCK)
+    for b0 in range(lo, hi, _BLOCK):
+        n = min(_BLOCK, hi - b0)
+        _gather(b0, n, means, quats, scales, P)
+        for k in range(n):
+            i = b0 + k
+            P[10 * _BLOCK + k] = v_means2d[i, 0]
+            P[11 * _BLOCK + k] = v_means2d[i, 1]
+            for c in range(3):
+                P[(12 + c) * _BLOCK + k] = v_conics[i, c]
+            P[15 * _BLOCK + k] = v_depths[i]
+        for k in range(np.uint64(0), np.uint64(n)):
+            (O[k], O[B + k], O[2 * B + k], O[3 * B + k], O[4 * B + k], O[5 * B + k],
+             O[6 * B + k], O[7 * B + k], O[8 * B + k], O[9 * B + k]) = _backward_one(
+                P[k], P[B + k], P[2 * B + k], P[3 * B + k], P[4 * B + k], P[5 * B + k],
+                P[6 * B + k], P[7 * B + k], P[8 * B + k], P[9 * B + k], cam,
+                P[10 * B + k], P[11 * B + k], P[12 * B + k], P[13 * B + k], P[14 * B + k],
+                P[15 * B + k])
+        for k in range(n):
+            i = b0 + k
+            for c in range(3):
+                v_means[i, c] = O[c * _BLOCK + k]
+                v_scales[i, c] = O[(7 + c) * _BLOCK + k]
+            for c in range(4):
+                v_quats[i, c] = O[(3 + c) * _BLOCK + k]
 
 
 def project_backward(means, quats, scales, cam, v_means2d, v_conics, v_depths):
     n = means.shape[0]
     out = (np.zeros((n, 3), np.float32), np.zeros((n, 4), np.float32), np.zeros((n, 3), np.float32))
     parallel_for(_backward_range, n, means, quats, scales, cam, v_means2d, v_conics, v_depths,
-                 *out, min_chunk=MIN_CHUNK_N)
+                 *out, min_chunk=_MIN_CHUNK)
     return out
 
 
