@@ -139,7 +139,7 @@ def cpu_profile(case: Case, repeats: int) -> dict:
     gA = g.standard_normal((H, W)).astype(np.float32)
     st["pixels_bwd"] = median_ms(lambda: _kernels.backward(*args, T, last, gF, gA), repeats)
     slots = _kernels.backward(*args, T, last, gF, gA)
-    st["slot_reduce"] = median_ms(lambda: _kernels.reduce_slots(ids, m2.shape[0], *slots), repeats)
+    st["slot_reduce"] = median_ms(lambda: _kernels.reduce_slots(ids, m2.shape[0], slots), repeats)
 
     def proj_bwd():
         p, pr = project()

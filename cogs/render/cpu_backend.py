@@ -101,9 +101,9 @@ class _Rasterize(torch.autograd.Function):
         g_bg = None if ctx.like[5] is None else g_bg.astype(np.float32)
         ids, n = geometry[1], geometry[2].shape[0]
         slots = _kernels.backward(*geometry, T_final, last, grad_feat, g_a)
-        g_m2, g_co, g_op, g_fe = _kernels.reduce_slots(ids, n, *slots)
-        grads = (g_m2, g_co, g_op, np.ascontiguousarray(g_fe[:, :D]),
-                 np.ascontiguousarray(g_fe[:, D]), g_bg)
+        g = _kernels.reduce_slots(ids, n, slots)
+        f = _kernels.SLOT_FEAT
+        grads = (g[:, 0:2], g[:, 2:5], g[:, 5], g[:, f:f + D], g[:, f + D], g_bg)
         out = []
         for g, like in zip(grads, ctx.like):
             out.append(None if g is None or like is None
