@@ -86,6 +86,11 @@ class LossWeights:
     """Rotation part (geodesic, radians) of the pose prior."""
     acceleration: float = 50.0
     rotation_smoothness: float = 0.05
+    rest_translation: float = 5.0
+    """Mean movement (m) between consecutive frames where the initial trajectory is at rest
+    (ObjectBranch.rest_frames): an object on a table stays put."""
+    rest_rotation: float = 0.5
+    """Mean turn (radians) between consecutive frames at rest."""
     # -- composition (V, VI) --
     compose_human_mask: float = 0.1
     compose_object_mask: float = 0.2

@@ -257,3 +257,64 @@ def test_object_follows_its_trajectory(tiny_branches):
     centroid_canon = o.gaussians.means.mean(0)
     R = quat_to_rotmat(q)
     torch.testing.assert_close(means.mean(0), (centroid_canon - c) @ R.T + tr, atol=1e-5, rtol=0)
+
+
+def _still_then_moving(T: int = 60, still: int = 25, seed: int = 0) -> torch.Tensor:
+    """Positions [T, 3]: at rest for `still` frames (5 mm per-frame jitter, a 1 cm slow
+    drift, like an estimate's errors), then moving at 5 cm per frame with a 3-frame pause."""
+    g = torch.Generator().manual_seed(seed)
+    t = torch.arange(T, dtype=torch.float64)
+    speed = torch.where(t < still, 0.0, 0.05)
+    speed[40:43] = 0.0  # a pause too short to count as a rest
+    x = torch.cumsum(speed, 0)
+    pos = torch.stack([x, 0.5 * x, torch.zeros(T, dtype=torch.float64)], -1)
+    drift = 0.01 * torch.sin(t / 15.0)[:, None] * torch.tensor([1.0, -1.0, 0.5], dtype=torch.float64)
+    return pos + drift + 0.005 * torch.randn(T, 3, generator=g, dtype=torch.float64)
+
+
+def test_rest_frames_find_a_still_object_under_estimation_noise():
+    from cogs.branches.object import rest_frames
+
+    rest = rest_frames(_still_then_moving(), size=0.4)
+    assert bool(rest[:22].all()), rest[:25]
+    assert not bool(rest[27:].any()), rest[25:]
+    # A slow carry (1.2 cm per frame, the synthetic benchmark's last frames) is motion.
+    slow = torch.arange(40, dtype=torch.float64)[:, None] * torch.tensor([0.012, 0.0, 0.0], dtype=torch.float64)
+    assert not bool(rest_frames(slow, size=0.4).any())
+
+
+def test_rest_losses_hold_a_resting_object_still_and_leave_the_motion():
+    from cogs.branches.object import ObjectBranch, ObjectConfig, fit_initial_trajectory
+    from cogs.geometry.rotations import axis_angle_to_quat, quat_geodesic_angle
+
+    T = 60
+    prior_t = _still_then_moving(T).float()
+    g = torch.Generator().manual_seed(1)
+    # the initial rotations wander by a few degrees at rest, then the object turns
+    angle = torch.where(torch.arange(T) < 25, 0.0, 0.1 * (torch.arange(T) - 25.0))
+    axis_angle = torch.stack([angle, 0.05 * torch.randn(T, generator=g), 0.05 * torch.randn(T, generator=g)], -1)
+    prior_q = axis_angle_to_quat(axis_angle)
+    cfg = ObjectConfig()
+    key_times, p, v, q = fit_initial_trajectory(prior_t.double(), prior_q.double(), cfg)
+    pts = 0.15 * torch.randn(200, 3, generator=g)
+    gs = GaussianSet.from_points(pts, torch.full_like(pts, 0.5), torch.full((200, 3), 0.01))
+    obj = ObjectBranch(gs, torch.zeros(3), key_times, p, v, q, prior_t, prior_q, cfg)
+    assert bool(obj.rest[:20].all()) and not bool(obj.rest[30:].any())
+
+    frames = torch.arange(T, dtype=torch.float32)
+    with torch.no_grad():
+        _, q_moving_before = obj.pose(frames[30:])
+    dt0, dq0 = (x.item() for x in obj.rest_losses())
+    assert float(dt0) > 1e-3 and float(dq0) > 1e-3
+    opt = torch.optim.Adam([obj.key_p, obj.key_v, obj.key_q], lr=2e-3)
+    for _ in range(300):
+        opt.zero_grad()
+        dt, dq = obj.rest_losses()
+        (5.0 * dt + 0.5 * dq).backward()
+        opt.step()
+    dt1, dq1 = (x.item() for x in obj.rest_losses())
+    assert float(dt1) < 0.1 * float(dt0) and float(dq1) < 0.1 * float(dq0)
+    with torch.no_grad():
+        _, q_moving = obj.pose(frames[30:])
+    # frames well away from the rest keep their motion
+    assert float(quat_geodesic_angle(q_moving, q_moving_before).max()) < 1e-3

@@ -4,7 +4,9 @@ x_world(tau) = R(q(tau)) (x_canonical - c) + t(tau), with t(tau) a cubic Hermite
 through K keyframes (position p_k, velocity v_k) and q(tau) the SLERP of keyframe
 quaternions q_k along the shortest arc (math in cogs.geometry.splines). Time tau is the
 frame index. The keyframes start fitted to the noisy initial per-frame poses, which stay
-as the pose prior (t̄_t, q̄_t).
+as the pose prior (t̄_t, q̄_t). Where that initial trajectory holds the object still for
+several frames (``rest_frames``: on a table before it is picked up, in a hand that pauses),
+the trajectory is asked to stay still too (``rest_losses``).
 
 Canonical Gaussians start on the surface of a visual hull carved from the object masks
 under the initial trajectory (robust voting, so pose noise and occlusion by the person do
@@ -54,6 +56,11 @@ class ObjectConfig:
     shading: bool = True
     """Albedo x irradiance of the posed normal (see shading.py): the object turns under
     world-fixed light. Gaussians start as discs tangent to the hull, so they have normals."""
+    rest_speed: float = 0.02
+    """At rest: the initial trajectory's smoothed speed below this fraction of the object's
+    size per frame (see ``rest_frames``)."""
+    rest_min_frames: int = 5
+    """Shortest run of frames that counts as a rest."""
 
 
 class ObjectBranch(torch.nn.Module):
@@ -80,6 +87,12 @@ class ObjectBranch(torch.nn.Module):
         self.register_buffer("prior_t", prior_t.float().clone())
         self.register_buffer("prior_q", quat_normalize(prior_q.float()).clone())
         self.shading = Irradiance()
+        # Derived from the prior and the initial Gaussians (not state: a resumed run
+        # rebuilds the branch the same way before loading its tensors).
+        self.size = object_size(gaussians.means.detach(), centre)
+        self.rest = rest_frames(self.prior_t, self.size, cfg.rest_speed, min_run=cfg.rest_min_frames)
+        if bool(self.rest.any()):
+            log.info("object: at rest in %d of %d frames (initial trajectory)", int(self.rest.sum()), len(self.rest))
 
     def __len__(self) -> int:
         return len(self.gaussians)
@@ -115,12 +128,66 @@ class ObjectBranch(torch.nn.Module):
         _, q = self.pose(frames.float())
         return quat_geodesic_angle(q, self.prior_q[frames.long()]).mean()
 
+    def rest_losses(self) -> tuple[Tensor, Tensor]:
+        """(translation m, rotation rad): mean change between consecutive frames that are
+        both at rest; zero (with a graph) when there is no rest."""
+        pair = self.rest[:-1] & self.rest[1:]
+        tr, q = self.pose(torch.arange(self.n_frames, dtype=torch.float32))
+        if not bool(pair.any()):
+            zero = tr.sum() * 0
+            return zero, zero
+        dt = (tr[1:] - tr[:-1]).norm(dim=-1)[pair].mean()
+        dq = quat_geodesic_angle(q[1:], q[:-1])[pair].mean()
+        return dt, dq
+
     def smoothness_losses(self, substeps: int = 1) -> tuple[Tensor, Tensor]:
         """(acceleration, rotation smoothness) of the trajectory sampled every frame/substeps."""
         tau = torch.arange(0, (self.n_frames - 1) * substeps + 1, dtype=torch.float32) / substeps
         tr, q = self.pose(tau)
         # Angular acceleration, not speed: a steady spin in the hand costs nothing.
         return acceleration_penalty(tr), rotation_smoothness(q, order=2)
+
+
+def object_size(means: Tensor, centre: Tensor) -> float:
+    """A robust diameter of a Gaussian set (twice the 90th percentile distance of its means
+    from ``centre``), metres; 0 for an empty set."""
+    if len(means) == 0:
+        return 0.0
+    return 2.0 * float(torch.quantile((means.float() - centre.float()).norm(dim=-1), 0.9))
+
+
+def rest_frames(positions: Tensor, size: float, speed: float = 0.02, window: int = 7, min_run: int = 5) -> Tensor:
+    """[T] bool: the frames in which a noisy trajectory ``positions`` [T, 3] holds still.
+
+    The positions are median-filtered over ``window`` frames per axis (per-frame jitter of
+    an estimate is not motion), the speed at t is |s(t + h) - s(t - h)| / 2h with
+    h = window // 2 (one-sided at the ends), and a frame is at rest where that is below
+    ``speed`` x ``size`` per frame, in runs of at least ``min_run`` frames.
+    """
+    T = int(positions.shape[0])
+    rest = torch.zeros(T, dtype=torch.bool)
+    if T < max(min_run, 2) or size <= 0:
+        return rest
+    h = window // 2
+    p = positions.detach().double()
+    pad = torch.cat([p[:1].expand(h, 3), p, p[-1:].expand(h, 3)])
+    smooth = pad.unfold(0, 2 * h + 1, 1).median(dim=-1).values  # [T, 3]
+    idx = torch.arange(T)
+    lo, hi = (idx - h).clamp(min=0), (idx + h).clamp(max=T - 1)
+    v = (smooth[hi] - smooth[lo]).norm(dim=-1) / (hi - lo).clamp(min=1)
+    still = v < speed * size
+    t = 0
+    while t < T:
+        if not still[t]:
+            t += 1
+            continue
+        e = t
+        while e < T and still[e]:
+            e += 1
+        if e - t >= min_run:
+            rest[t:e] = True
+        t = e
+    return rest
 
 
 def fit_initial_trajectory(prior_t: Tensor, prior_q: Tensor, cfg: ObjectConfig) -> tuple[Tensor, Tensor, Tensor, Tensor]:

@@ -280,8 +280,9 @@ class Trainer:
         return loss
 
     def _object_motion_terms(self, polish: bool, terms: dict) -> torch.Tensor:
-        """Pose prior (translation + lambda_R rotation) over the training frames and
-        acceleration smoothness; `polish` (IV, VI) adds the rotation smoothness term."""
+        """Pose prior (translation + lambda_R rotation) over the training frames,
+        acceleration smoothness and stillness where the object rests; `polish` (IV, VI)
+        adds the rotation smoothness term."""
         from cogs.geometry.rotations import quat_geodesic_angle
 
         w = self.cfg.weights
@@ -294,6 +295,9 @@ class Trainer:
         loss = loss + w.acceleration * acc
         if polish:
             loss = loss + w.rotation_smoothness * rot
+        if w.rest_translation > 0 or w.rest_rotation > 0:
+            rest_t, rest_q = o.rest_losses()
+            loss = loss + w.rest_translation * rest_t + w.rest_rotation * rest_q
         terms["motion"] = _val(loss)
         return loss
 
