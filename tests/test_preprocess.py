@@ -6,6 +6,8 @@ with a reason when they are missing. Everything else runs on synthetic frames.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -45,6 +47,22 @@ def test_video_frames_respect_stride_limit_and_max_side(tmp_path):
     assert fr.source_size == (80, 120)
     # Frame 4 of the source was grey level 40 (H.264 is lossy: within a few levels).
     assert abs(float(fr.images[2].mean()) - 40) < 4
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs to vary")
+def test_encoded_video_does_not_depend_on_how_many_cpus_the_encoder_sees(tmp_path):
+    # libx264 picks its thread count from the CPUs it may use, and its output from that;
+    # the accuracy benchmark's numbers must not change from machine to machine.
+    big = _texture(240, 480, seed=1)
+    video = np.stack([big[:, 8 * i : 8 * i + 320] for i in range(12)])
+    cpus = os.sched_getaffinity(0)
+    F.write_video(tmp_path / "all.mp4", video)
+    os.sched_setaffinity(0, {min(cpus)})
+    try:
+        F.write_video(tmp_path / "one.mp4", video)
+    finally:
+        os.sched_setaffinity(0, cpus)
+    assert np.array_equal(F.read_frames(tmp_path / "all.mp4").images, F.read_frames(tmp_path / "one.mp4").images)
 
 
 def test_image_folder_is_read_in_name_order(tmp_path):
