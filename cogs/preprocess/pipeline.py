@@ -28,7 +28,7 @@ from cogs.errors import UserError
 log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
-TRACKER_VERSION = 2  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
+TRACKER_VERSION = 3  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 STEPS = ["frames", "persons", "objects", "cameras", "body", "object_pose", "planes", "scene"]
 
 

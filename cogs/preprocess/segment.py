@@ -175,9 +175,11 @@ def grabcut_box(rgb: np.ndarray, box: np.ndarray, iterations: int = 5) -> np.nda
     return fill_holes(out)
 
 
-def grabcut_at(rgb: np.ndarray, prob: np.ndarray, centre, size, human_prob: np.ndarray | None, iterations: int = 3) -> np.ndarray:
+def grabcut_at(rgb: np.ndarray, prob: np.ndarray, centre, size, human_prob: np.ndarray | None, iterations: int = 3,
+               static: np.ndarray | None = None) -> np.ndarray:
     """GrabCut around an object located at ``centre`` with bounding ``size`` (w, h), seeded
-    from the colour probability ``prob`` -> [H, W] bool."""
+    from the colour probability ``prob`` -> [H, W] bool. ``static`` [H, W] bool: pixels
+    known to show the static scene, background whatever their colour."""
     import cv2
 
     H, W = rgb.shape[:2]
@@ -200,6 +202,8 @@ def grabcut_at(rgb: np.ndarray, prob: np.ndarray, centre, size, human_prob: np.n
     if human_prob is not None:
         # Confident person pixels that do not look like the object are background.
         labels[(human_prob[y0:y1, x0:x1] > 0.9) & (p < 0.3)] = cv2.GC_BGD
+    if static is not None:
+        labels[static[y0:y1, x0:x1]] = cv2.GC_BGD
     if not _foreground(labels).any():
         return np.zeros((H, W), bool)
     if not ((labels == cv2.GC_PR_BGD) | (labels == cv2.GC_BGD)).any():
@@ -214,13 +218,16 @@ def grabcut_at(rgb: np.ndarray, prob: np.ndarray, centre, size, human_prob: np.n
     return out
 
 
-def grabcut_from_seed(rgb: np.ndarray, prob: np.ndarray, seed: np.ndarray, human_prob: np.ndarray | None, iterations: int = 3) -> np.ndarray:
+def grabcut_from_seed(rgb: np.ndarray, prob: np.ndarray, seed: np.ndarray, human_prob: np.ndarray | None, iterations: int = 3,
+                      static: np.ndarray | None = None) -> np.ndarray:
     """GrabCut around a predicted mask ``seed`` -> [H, W] bool.
 
     The seed's core (eroded by 15 % of its size) is object whatever its colour (a turning
     object shows faces the colour model has not seen), its ring (0.6 of its size) may go
     either way, and beyond that is background; confident person pixels that do not look
-    like the object (``prob`` < 0.3) are background outside the core.
+    like the object (``prob`` < 0.3) are background outside the core. ``static`` [H, W]
+    bool: pixels known to show the static scene, background (probable background in the
+    core: the seed may be off by a little).
     """
     import cv2
 
@@ -243,6 +250,11 @@ def grabcut_from_seed(rgb: np.ndarray, prob: np.ndarray, seed: np.ndarray, human
     labels[core] = cv2.GC_FGD
     if human_prob is not None:
         labels[(human_prob[y0:y1, x0:x1] > 0.9) & (p < 0.3) & ~core] = cv2.GC_BGD
+    if static is not None:
+        st = static[y0:y1, x0:x1]
+        labels[st] = np.where(core[st], cv2.GC_PR_BGD, cv2.GC_BGD)
+    if not _foreground(labels).any():
+        return np.zeros((H, W), bool)
     if not ((labels == cv2.GC_BGD) | (labels == cv2.GC_PR_BGD)).any():
         labels[0, :] = cv2.GC_BGD
     try:
@@ -255,7 +267,8 @@ def grabcut_from_seed(rgb: np.ndarray, prob: np.ndarray, seed: np.ndarray, human
     return out
 
 
-def grabcut_at_hand(rgb: np.ndarray, hand: np.ndarray, size: float, human_prob: np.ndarray | None, iterations: int = 4) -> np.ndarray:
+def grabcut_at_hand(rgb: np.ndarray, hand: np.ndarray, size: float, human_prob: np.ndarray | None, iterations: int = 4,
+                    static: np.ndarray | None = None) -> np.ndarray:
     """The object held at pixel ``hand`` (x, y), its appearance unknown -> [H, W] bool
     (empty when nothing suitable touches the hand).
 
@@ -263,8 +276,9 @@ def grabcut_at_hand(rgb: np.ndarray, hand: np.ndarray, size: float, human_prob: 
     by a corner) pixels may be object, the window's rim (another ``size`` out) is
     background and trains the background colours, and the person's confident pixels
     are background everywhere (with only a hand to go on, an object seen against the
-    body cannot be told from it). Of what GrabCut keeps, the piece of at least a fifth
-    of ``size``^2 nearest the hand, within half a ``size`` of it.
+    body cannot be told from it). ``static`` [H, W] bool: pixels known to show the static
+    scene, background too. Of what GrabCut keeps, the piece of at least a fifth of
+    ``size``^2 nearest the hand, within half a ``size`` of it.
     """
     import cv2
 
@@ -280,6 +294,8 @@ def grabcut_at_hand(rgb: np.ndarray, hand: np.ndarray, size: float, human_prob: 
     labels = np.where(inner, cv2.GC_PR_FGD, cv2.GC_BGD).astype(np.uint8)
     if human_prob is not None:
         labels[human_prob[y0:y1, x0:x1] > 0.5] = cv2.GC_BGD
+    if static is not None:
+        labels[static[y0:y1, x0:x1]] = cv2.GC_BGD
     if not (labels == cv2.GC_PR_FGD).any() or not (labels == cv2.GC_BGD).any():
         return np.zeros((H, W), bool)
     try:

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cogs.errors import UserError
+from cogs.preprocess.background import StaticScene, colour_residual, person_free
 from cogs.preprocess.segment import (
     ColourModel,
     fill_holes,
@@ -55,35 +56,45 @@ log = logging.getLogger(__name__)
 
 # MediaPipe pose landmarks of each hand (left, right): elbow, wrist, pinky, index, thumb.
 _HAND_LANDMARKS = ((13, 15, 17, 19, 21), (14, 16, 18, 20, 22))
+# Frames back along a pass whose static scene a frame is compared with: near ones see the
+# same view, far ones see what the person and the object covered in the near ones.
+_SCENE_OFFSETS = (1, 2, 4, 8, 12)
 
 
 # -- motion cues ----------------------------------------------------------------------
 
 
-def warp_mask_by_flow(prev_rgb: np.ndarray, rgb: np.ndarray, prev_mask: np.ndarray, margin: float = 1.5) -> np.ndarray:
+def warp_mask_by_flow(prev_rgb: np.ndarray, rgb: np.ndarray, prev_mask: np.ndarray, margin: float = 1.5,
+                      max_residual: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
     """The previous frame's mask carried into this frame by dense optical flow, computed in a
-    window around the mask -> [H, W] bool (empty when nothing lands).
+    window around the mask -> (carried [H, W] bool, empty when nothing lands; the part of it
+    whose colours match where the flow says they came from, within ``max_residual`` grey
+    levels (``background.colour_residual``, 1 px tolerance), [H, W] bool).
 
     DIS flow (OpenCV's dense inverse search): its coarse-to-fine patch search follows a
     fast object much further than Farneback's polynomial expansion (on the synthetic
-    benchmark, a gently moving box: IoU 0.98 against 0.42 while the camera pans).
+    benchmark, a gently moving box: IoU 0.98 against 0.42 while the camera pans). The
+    matching part is the object still seen as it was: where something passed in front
+    of it, the flow either follows the occluder (off the mask) or finds no match.
     """
     import cv2
 
     H, W = prev_mask.shape
+    out, matched = np.zeros((H, W), bool), np.zeros((H, W), bool)
     if not prev_mask.any():
-        return np.zeros((H, W), bool)
+        return out, matched
     x0, y0, x1, y1 = window(prev_mask, margin)
     a = cv2.cvtColor(np.ascontiguousarray(rgb[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)
     b = cv2.cvtColor(np.ascontiguousarray(prev_rgb[y0:y1, x0:x1]), cv2.COLOR_RGB2GRAY)
     # Flow from this frame to the previous one: where each pixel here came from.
     flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(a, b, None)
     gy, gx = np.mgrid[0 : y1 - y0, 0 : x1 - x0].astype(np.float32)
+    mx, my = gx + flow[..., 0], gy + flow[..., 1]
     pm = prev_mask[y0:y1, x0:x1].astype(np.float32)
-    warped = cv2.remap(pm, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR, borderValue=0.0)
-    out = np.zeros((H, W), bool)
-    out[y0:y1, x0:x1] = warped > 0.5
-    return out
+    out[y0:y1, x0:x1] = cv2.remap(pm, mx, my, cv2.INTER_LINEAR, borderValue=0.0) > 0.5
+    source = cv2.remap(np.ascontiguousarray(prev_rgb[y0:y1, x0:x1]), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    matched[y0:y1, x0:x1] = out[y0:y1, x0:x1] & (colour_residual(rgb[y0:y1, x0:x1], source, 1) <= max_residual)
+    return out, matched
 
 
 def align_mask(mask: np.ndarray, prob: np.ndarray, margin: float = 1.0) -> tuple[np.ndarray | None, float]:
@@ -222,20 +233,28 @@ class FeatureBank:
             return None  # mostly outside the frame
         return warped, n
 
+    def static_matches(self, t0: int, t1: int, static0: np.ndarray, most: int = 500) -> tuple[np.ndarray, np.ndarray]:
+        """Keypoints of frame t0 where ``static0`` [H, W] bool (no person, no object) and
+        their matches in frame t1 -> (xy0 [N, 2], xy1 [N, 2]) pixels. At most ``most``
+        keypoints, evenly picked, are matched: a textured scene has thousands, and a
+        camera's motion needs far fewer (brute-force matching costs their product)."""
+        xy0, d0 = self._frame(t0)
+        xy1, d1 = self._frame(t1)
+        H, W = static0.shape
+        keep = np.flatnonzero(static0[np.clip(xy0[:, 1].astype(int), 0, H - 1), np.clip(xy0[:, 0].astype(int), 0, W - 1)])
+        if len(keep) > most:
+            keep = keep[np.linspace(0, len(keep) - 1, most).astype(int)]
+        pairs = self._pairs(d0[keep], d1)
+        return xy0[keep][[m.queryIdx for m in pairs]].reshape(-1, 2), xy1[[m.trainIdx for m in pairs]].reshape(-1, 2)
+
     def background_motion(self, t0: int, t1: int, static0: np.ndarray) -> np.ndarray | None:
         """[3, 3] homography taking frame t0's pixels where ``static0`` (no person, no
         object) to frame t1's, from matched keypoints; None when too few match."""
         import cv2
 
-        xy0, d0 = self._frame(t0)
-        xy1, d1 = self._frame(t1)
-        H, W = static0.shape
-        keep = static0[np.clip(xy0[:, 1].astype(int), 0, H - 1), np.clip(xy0[:, 0].astype(int), 0, W - 1)]
-        pairs = self._pairs(d0[keep], d1)
-        if len(pairs) < 8:
+        src, dst = self.static_matches(t0, t1, static0)
+        if len(src) < 8:
             return None
-        src = xy0[keep][[m.queryIdx for m in pairs]]
-        dst = xy1[[m.trainIdx for m in pairs]]
         Hm, inl = cv2.findHomography(src, dst, cv2.RANSAC, 3.0)
         return Hm if Hm is not None and inl.sum() >= 8 else None
 
@@ -323,6 +342,29 @@ def carrying_hand(hands: np.ndarray | None, t0: int, t1: int, m0: np.ndarray, m1
         if d <= touch * size and moved <= moved_max * size and d < best_d:
             best, best_d = h, d
     return best
+
+
+def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float) -> np.ndarray:
+    """The moving thing a hand at pixel ``hand`` (x, y) holds -> [H, W] bool, empty when
+    none: of ``moving`` [H, W] bool (pixels that are neither static scene nor the person),
+    after an opening that drops the slivers left along the person's outline, the largest
+    piece within ``size`` (the object's side, pixels) of the hand (MediaPipe's hand points
+    are the palm's, and an object may be held by its corner)."""
+    import cv2
+
+    H, W = moving.shape
+    r = max(1, int(0.05 * size))
+    opened = cv2.morphologyEx(moving.astype(np.uint8), cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
+    if n <= 1:
+        return np.zeros((H, W), bool)
+    yy, xx = np.mgrid[:H, :W]
+    near = (xx + 0.5 - hand[0]) ** 2 + (yy + 0.5 - hand[1]) ** 2 <= (1.5 * size) ** 2
+    touching = np.unique(comp[near & (comp > 0)])
+    if len(touching) == 0:
+        return np.zeros((H, W), bool)
+    best = touching[np.argmax(stats[touching, cv2.CC_STAT_AREA])]
+    return fill_holes(comp == best)
 
 
 def move_with_hand(mask: np.ndarray, kp0: np.ndarray, kp1: np.ndarray, hand: int) -> np.ndarray:
@@ -467,6 +509,9 @@ class _Tracker:
         self.ref_score = float(self.base_model.prob(images[prompt_frame])[prompt_mask].mean())
         self.bank = FeatureBank(images)
         self.bank.pin(prompt_frame, prompt_mask)
+        self.scene = None if human_probs is None else StaticScene(images, human_probs, self.bank.static_matches)
+        self.masks = np.zeros((len(images), *prompt_mask.shape), bool)  # the masks found so far (run's)
+        self._scene_maps: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}
 
     # -- models -----------------------------------------------------------------------
 
@@ -491,6 +536,33 @@ class _Tracker:
         band = np.zeros_like(st.mask)
         band[y0:y1, x0:x1] = cv2.dilate(st.mask[y0:y1, x0:x1].astype(np.uint8), k) > 0
         return ColourModel.fit(self.images[st.t], st.visible, band & ~st.visible, self.distractors)
+
+    def _static_and_moving(self, t: int, direction: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(static [H, W] bool: pixels that show the static scene, moving [H, W] bool: pixels
+        that clearly do not) in frame t, judged against the frames the pass came through
+        where the object was found (its masks are known there, so a resting object is not
+        taken for scene); None without person masks or such frames.
+
+        The thresholds follow the frame's own residual noise off the person: most pixels
+        there are static scene.
+        """
+        if self.scene is None:
+            return None
+        refs = tuple(u for u in (t - k * direction for k in _SCENE_OFFSETS) if 0 <= u < len(self.images) and self.masks[u].any())
+        key = (t, refs)
+        if key not in self._scene_maps:
+            maps = None
+            if refs:
+                r = self.scene.residual(t, [(u, self.masks[u]) for u in refs])
+                seen = np.isfinite(r)
+                calib = seen & person_free(self.human_probs[t], self.scene.margin)
+                if calib.sum() >= 0.1 * r.size:
+                    noise = float(np.percentile(r[calib], 95))
+                    lo = max(8.0, 3.0 * noise)
+                    log.debug("scene residual frame %d: noise %.1f", t, noise)
+                    maps = (seen & (r <= lo), seen & (r >= 2.5 * lo))
+            self._scene_maps[key] = maps
+        return self._scene_maps[key]
 
     def _hands_mask(self, t: int) -> np.ndarray:
         if self.kp2d is None:
@@ -640,6 +712,11 @@ class _Tracker:
         prob_search = prob.copy()
         prob_search[hands] *= 0.2
         hands_t = None if self.hands is None else self.hands[t]
+        maps = self._static_and_moving(t, direction)
+        static, moving = (np.zeros((H, W), bool),) * 2 if maps is None else maps
+        # What moves and is not the person (nor a hand) is the object, whatever its colour.
+        moving = moving & (hp <= 0.5) & ~hands if hp is not None else moving
+        prob_search[static] = 0.0  # the static scene is never the object
         # A carried object stays with its hand (a look-alike across the room is not it):
         # the search keeps to the hand, if visible, and near the motion prediction.
         # Otherwise the whole frame is searched.
@@ -654,7 +731,7 @@ class _Tracker:
             return float(prob[m].mean()) if m.any() else 0.0
 
         # 1. Motion.
-        found = self._by_motion(t, st, direction, rgb, hp, hands)
+        found = self._by_motion(t, st, direction, rgb, hp, hands, static, moving)
         if found is not None:
             found.colour = colour_of(found.visible)
             # It must still look like the object: clearly (half the prompt's evidence), or
@@ -680,7 +757,7 @@ class _Tracker:
         centre, score, plausible = locate(prob_search, st, hands_t, floor)
         if score >= self.min_score * self.ref_score * (1.3 - 0.6 * plausible):
             cf = min(1.0, score / self.ref_score)
-            seg = grabcut_at(rgb, prob_search, centre, st.size, hp)
+            seg = grabcut_at(rgb, prob_search, centre, st.size, hp, static=static)
             seg = fill_holes(largest_component_near(seg, tuple(centre))) & ~hands if seg.any() else seg
             if 0.25 * self.ref_area <= seg.sum() <= 3.0 * self.ref_area:
                 return _Found(seg, seg, cf, "colour", score)
@@ -693,10 +770,21 @@ class _Tracker:
                 return _Found(fallback, fallback, cf, "colour", score)
 
         # 3. The hand: an object carried for a while is still in that hand, whatever face
-        #    it now shows (for a few frames; past them it may have been put down).
+        #    it now shows (for a few frames; past them it may have been put down). First
+        #    what moves there and is not the person, then GrabCut next to the hand.
         h = st.carrier
+        if st.carried >= 2 and maps is not None:
+            for k in (h, 1 - h):
+                if not _visible(self.hands, t, k):
+                    continue
+                seg = moving_at_hand(moving, self.hands[t, k, :2], float(np.sqrt(st.area)))
+                visible = seg & ~hands
+                # Less solid than a GrabCut find may be: where the object's colour happens
+                # to match the scene behind it, the static scene bites into it.
+                if 0.4 * st.area <= visible.sum() <= 2.5 * st.area and solidity(seg) >= 0.7:
+                    return _Found(visible, visible, 0.5, "moving", colour_of(visible))
         if st.carried >= 2 and _visible(self.hands, t, h):
-            seg = grabcut_at_hand(rgb, self.hands[t, h, :2], float(np.sqrt(st.area)), hp)
+            seg = grabcut_at_hand(rgb, self.hands[t, h, :2], float(np.sqrt(st.area)), hp, static=static)
             visible = seg & ~hands
             if (0.4 * st.area <= visible.sum() <= 2.5 * st.area and solidity(seg) >= 0.8
                     and not self._unchanged(t, t - direction, visible)):
@@ -704,7 +792,8 @@ class _Tracker:
         empty = np.zeros((H, W), bool)
         return _Found(empty, empty)
 
-    def _by_motion(self, t: int, st: _State, direction: int, rgb: np.ndarray, hp, hands: np.ndarray) -> _Found | None:
+    def _by_motion(self, t: int, st: _State, direction: int, rgb: np.ndarray, hp, hands: np.ndarray,
+                   static: np.ndarray, moving: np.ndarray) -> _Found | None:
         """Cue 1: the last extent placed by each motion hint, fitted to this frame's local
         colour likelihood; the best fit, if good enough, refined by GrabCut."""
         lp = self._local_model(st).prob(rgb)
@@ -712,14 +801,19 @@ class _Tracker:
         feat = self.bank.match(t)
         if feat is not None:
             cands.append(("features", feat[0]))
+        kept = None
         if st.t == t - direction:
-            flow = warp_mask_by_flow(self.images[st.t], rgb, st.mask)
+            flow, kept = warp_mask_by_flow(self.images[st.t], rgb, st.mask)
             if flow.sum() >= 0.25 * st.mask.sum():
                 cands.append(("flow", flow))
             # Not while a hand find waits for confirmation: that must come without the hand.
             h = st.carrier
             if st.pending is None and st.carried >= 2 and _visible(self.hands, st.t, h) and _visible(self.hands, t, h):
                 cands.append(("carried", move_with_hand(st.mask, self.kp2d[st.t], self.kp2d[t], h)))
+        # Evidence beyond colour: what moves and is not the person is object, the static
+        # scene never is.
+        lp[moving] = np.maximum(lp[moving], 0.9)
+        lp[static] = 0.0
         best = None
         for name, cand in cands:
             if cand.any():
@@ -729,8 +823,13 @@ class _Tracker:
         if best is None or best[2] < self.min_align:
             return None  # moved too far, hidden, or changed too much
         cue, pred, cc = best
-        seg = grabcut_from_seed(rgb, lp, pred, hp)
+        seg = grabcut_from_seed(rgb, lp, pred, hp, static=static)
         seg = fill_holes(largest_component_near(seg, tuple(mask_stats(pred)[0]))) if seg.any() else seg
+        if kept is not None:
+            # What the rigid fit places on the object and the flow shows unchanged from
+            # the object stays object: GrabCut cuts away faces coloured like what they are
+            # held against, and a rigid object does not shrink.
+            seg |= pred & kept & ~hands & ~static
         if not (seg.any() and iou(seg, pred) >= 0.5 and 0.5 <= seg.sum() / pred.sum() <= 2.0):
             seg = pred  # GrabCut wandered off: keep the fitted shape
         if (seg & ~hands).sum() < 0.25 * seg.sum():
@@ -780,6 +879,7 @@ def propagate_masks(
     found = [""] * T
     masks[prompt_frame], conf[prompt_frame], found[prompt_frame] = prompt_mask, 1.0, "prompt"
     tracker = _Tracker(images, prompt_mask, prompt_frame, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames)
+    tracker.masks = masks
     done = [1]
 
     def tick():
