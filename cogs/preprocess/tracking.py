@@ -770,8 +770,9 @@ class _Tracker:
                 return _Found(fallback, fallback, cf, "colour", score)
 
         # 3. The hand: an object carried for a while is still in that hand, whatever face
-        #    it now shows (for a few frames; past them it may have been put down). First
-        #    what moves there and is not the person, then GrabCut next to the hand.
+        #    it now shows (for a few frames; past them it may have been put down): what
+        #    moves there and is not the person or, without a static scene to tell what
+        #    moves, GrabCut next to the hand (which also takes a piece of background).
         h = st.carrier
         if st.carried >= 2 and maps is not None:
             for k in (h, 1 - h):
@@ -783,7 +784,7 @@ class _Tracker:
                 # to match the scene behind it, the static scene bites into it.
                 if 0.4 * st.area <= visible.sum() <= 2.5 * st.area and solidity(seg) >= 0.7:
                     return _Found(visible, visible, 0.5, "moving", colour_of(visible))
-        if st.carried >= 2 and _visible(self.hands, t, h):
+        elif st.carried >= 2 and _visible(self.hands, t, h):
             seg = grabcut_at_hand(rgb, self.hands[t, h, :2], float(np.sqrt(st.area)), hp, static=static)
             visible = seg & ~hands
             if (0.4 * st.area <= visible.sum() <= 2.5 * st.area and solidity(seg) >= 0.8
