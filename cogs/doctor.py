@@ -18,12 +18,21 @@ def _version(mod: str) -> str:
         return f"unavailable ({type(e).__name__}: {str(e).splitlines()[0][:80]})"
 
 
+def _wait_policy() -> str:
+    policy = os.environ.get("OMP_WAIT_POLICY", "").upper()
+    if policy == "PASSIVE":
+        return "PASSIVE (idle torch threads sleep; see cogs/__init__.py)"
+    return (f"{policy or 'unset'}: idle torch threads spin, which slows training several-fold "
+            "when another process shares the cores (set OMP_WAIT_POLICY=PASSIVE)")
+
+
 def report(warm: bool = False) -> int:
     import torch
 
     rows = [
         ("python", platform.python_version()),
         ("torch", f"{torch.__version__}, {torch.get_num_threads()} threads, CUDA {'yes' if torch.cuda.is_available() else 'no'}"),
+        ("OpenMP wait policy", _wait_policy()),
         ("numba", _version("numba")),
         ("gsplat (CUDA backend)", _version("gsplat") if torch.cuda.is_available() else "not used (no CUDA device)"),
         ("cpu cores", str(os.cpu_count())),

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+import cogs  # noqa: F401  (before torch: sets torch's OpenMP wait policy, see cogs/__init__.py)
 import torch
 
 from tests.fixtures import make_tiny_scene

@@ -4,7 +4,8 @@ Why not numba's ``parallel=True``: its OpenMP workers spin while they wait for w
 with the default wait policy a parallel region on a machine where another process competes
 for the cores ran 5-7x slower than one thread (measured on the 2-core development
 machines: 180 ms instead of 25 ms per 20k-Gaussian step). The policy cannot be changed
-once torch has initialised OpenMP. Python threads calling ``nogil`` kernels block in the
+once torch has initialised OpenMP (`import cogs` sets it to PASSIVE when it comes first,
+see cogs/__init__.py, but a library cannot count on that). Python threads calling ``nogil`` kernels block in the
 kernel, never spin, and hand out chunks dynamically, so a thread that gets less CPU simply
 takes fewer chunks. Each chunk writes disjoint outputs, so results do not depend on which
 thread ran what.
