@@ -9,8 +9,9 @@ renders a different clip.
 
 1. Generates the synthetic benchmark scene (`cogs.data.synth`), or reads `--scene DIR`.
 2. Encodes its frames as a lossy H.264 video (PyAV, CRF 10, like a phone's; one encoder
-   thread, so every machine encodes the same bytes and runs are comparable: libx264's
-   output otherwise depends on the number of CPUs) and runs the preprocessing on it with a box
+   thread and no macroblock-tree rate control, so every run on every machine decodes the
+   same frames and runs are comparable: otherwise libx264's output depends on the number
+   of CPUs and, for some frame sizes, on memory it never wrote) and runs the preprocessing on it with a box
    prompt: the bounding box (grown by 10 %) of the ground-truth object mask on the frame
    where the object is largest and clear of the person (as a user would choose). The camera's focal length is given (a user who knows their
    camera); `--focal-prior` uses the default 1.2 x longer side prior instead.
@@ -239,7 +240,7 @@ def main(argv=None) -> int:
         "benchmark": "preprocess_accuracy",
         "frames": T, "width": W, "height": H,
         "focal": "prior 1.2 x longer side" if args.focal_prior else "true focal given",
-        "video": {"codec": "libx264", "crf": 10, "encoder_threads": 1},
+        "video": {"codec": "libx264", "crf": 10, "encoder_threads": 1, "mbtree": False},
         "box_frame": box_frame,
         "camera_method": method,
         "camera_rotation_deg": _stats(rot_err),

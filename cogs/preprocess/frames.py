@@ -155,10 +155,12 @@ def _read_folder(path: Path, stride, limit, max_side, start, on_frame) -> Frames
 def write_video(path: str | Path, frames: np.ndarray, fps: float = 12.0, crf: int = 12) -> None:
     """Encode [T, H, W, 3] uint8 frames as an H.264 MP4 (used by tests and benchmarks).
 
-    One encoder thread: libx264's output depends on its thread count, which by default
-    follows the CPUs the process may use, so the same frames gave decoded frames up to 35
-    grey levels apart on different machines; with one thread every machine writes the same
-    bytes.
+    The same frames give the same video on every machine and every run, so that the
+    accuracy benchmark's runs are comparable: one encoder thread (libx264's output depends
+    on its thread count, which by default follows the CPUs the process may use: decoded
+    frames 36-43 grey levels apart between 1, 2 and 4 threads) and no macroblock-tree
+    rate control (its lookahead reads memory it never wrote, so repeated encodes of the
+    synthetic scene's frames decoded up to 33 grey levels apart).
     """
     import av
     from fractions import Fraction
@@ -170,7 +172,7 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float = 12.0, crf: in
         stream = out.add_stream("libx264", rate=Fraction(fps).limit_denominator(1000))
         stream.width, stream.height = W - W % 2, H - H % 2
         stream.pix_fmt = "yuv420p"
-        stream.options = {"crf": str(crf), "threads": "1"}
+        stream.options = {"crf": str(crf), "threads": "1", "x264-params": "mbtree=0"}
         for rgb in frames:
             frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb[: stream.height, : stream.width]), format="rgb24")
             for packet in stream.encode(frame):
