@@ -50,6 +50,45 @@ def test_gsplat_backend_matches_the_reference_forward_and_backward():
     assert ((a.means2d.grad - b.means2d.grad).norm() / b.means2d.grad.norm()) < 1e-3
 
 
+def _compare(device, tensors, width, height, background, sh_degree=None):
+    """Forward outputs and leaf gradients (incl. the background's) of gsplat vs torch."""
+    outs, grads = {}, {}
+    for backend in ("gsplat", "torch"):
+        params = [t.clone().requires_grad_(True) for t in (*tensors[:5], background)]
+        out = rasterize(*params[:5], *tensors[5:], width, height, backend=backend,
+                        background=params[5], sh_degree=sh_degree)
+        g = torch.Generator(device="cpu").manual_seed(0)
+        loss = sum((o * torch.randn(o.shape, generator=g).to(device)).sum()
+                   for o in (out.colors, out.alpha, out.depth))
+        loss.backward()
+        outs[backend], grads[backend] = out, [p.grad for p in params]
+    return outs, grads
+
+
+@needs_cuda
+def test_gsplat_backend_matches_the_reference_with_sh_and_the_compositor_channels():
+    """Degree-3 SH colour (gsplat evaluates SH itself) and D = 6, the compositor's RGB +
+    three branch one-hot channels, which gsplat pads to its next supported width."""
+    pytest.importorskip("gsplat", reason="gsplat is not installed")
+    device = torch.device("cuda")
+    base = _scene(device)
+    g = torch.Generator().manual_seed(3)
+    sh = (0.3 * torch.randn(800, 16, 3, generator=g)).to(device)
+    six = torch.rand(800, 6, generator=g).to(device)
+    for colors, sh_degree, bg in ((sh, 3, torch.full((3,), 0.2)),
+                                  (six, None, torch.linspace(0.1, 0.6, 6))):
+        tensors = [*base[:4], colors, *base[5:]]
+        outs, grads = _compare(device, tensors, 96, 72, bg.to(device), sh_degree)
+        a, b = outs["gsplat"], outs["torch"]
+        assert a.colors.shape == b.colors.shape
+        assert (a.colors - b.colors).abs().max() < 1e-4, sh_degree
+        assert (a.alpha - b.alpha).abs().max() < 1e-4
+        for name, ga, gb in zip(("means", "quats", "scales", "opacities", "colors", "background"),
+                                grads["gsplat"], grads["torch"]):
+            assert ga is not None, name
+            assert ((ga - gb).norm() / gb.norm()) < 1e-3, (name, sh_degree)
+
+
 @needs_cuda
 def test_auto_backend_on_cuda_tensors_is_gsplat_when_available():
     pytest.importorskip("gsplat", reason="gsplat is not installed")
