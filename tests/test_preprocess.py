@@ -367,6 +367,23 @@ def test_a_carried_object_that_turns_a_new_face_is_found_again_at_its_hand(perso
         assert _iou(masks[t], gt[t]) > 0.7, (t, cues)
 
 
+def test_the_moving_piece_at_a_hand_gets_back_the_bites_of_look_alike_scene_if_convex():
+    from cogs.preprocess.tracking import moving_at_hand
+
+    H, W = 120, 160
+    yy, xx = np.mgrid[:H, :W]
+    box = _square(H, W, 80, 60, 20)
+    bite = box & (np.abs(xx + 0.5 - 80) <= 6) & (yy < 60)  # its colour matched the wall behind
+    moving = box & ~bite
+    moving[10:14, 5:30] = True  # a sliver of something else, away from the hand
+    hand = np.array([58.0, 60.0])
+    assert _iou(moving_at_hand(moving, hand, 40, convex=True), box) > 0.97
+    assert _iou(moving_at_hand(moving, hand, 40, convex=False), box & ~bite) > 0.97
+    assert not moving_at_hand(moving, np.array([150.0, 110.0]), 20).any()  # nothing within reach of that hand
+    thin = (np.abs(yy - 60) <= 2) & (xx > 60) & (xx < 120) | (np.abs(xx - 118) <= 2) & (yy > 20) & (yy < 100)
+    assert not moving_at_hand(thin, hand, 40, convex=True).any()  # an arm's outline, not an object
+
+
 def test_grabcut_gives_the_same_mask_whatever_opencvs_random_state():
     import cv2
 

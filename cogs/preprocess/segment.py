@@ -125,6 +125,17 @@ def solidity(mask: np.ndarray) -> float:
     return float(mask.sum()) / max(cv2.contourArea(cv2.convexHull(pts)), 1.0)
 
 
+def convex_hull(mask: np.ndarray) -> np.ndarray:
+    """The convex hull of a mask's pixels -> [H, W] bool (empty for an empty mask)."""
+    import cv2
+
+    out = np.zeros(mask.shape, np.uint8)
+    pts = cv2.findNonZero(mask.astype(np.uint8))
+    if pts is not None:
+        cv2.fillConvexPoly(out, cv2.convexHull(pts), 1)
+    return out > 0
+
+
 # -- GrabCut --------------------------------------------------------------------------
 
 

@@ -41,6 +41,7 @@ from cogs.errors import UserError
 from cogs.preprocess.background import StaticScene, colour_residual, person_free
 from cogs.preprocess.segment import (
     ColourModel,
+    convex_hull,
     fill_holes,
     grabcut_at,
     grabcut_at_hand,
@@ -344,12 +345,17 @@ def carrying_hand(hands: np.ndarray | None, t0: int, t1: int, m0: np.ndarray, m1
     return best
 
 
-def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float) -> np.ndarray:
+def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float, convex: bool = False) -> np.ndarray:
     """The moving thing a hand at pixel ``hand`` (x, y) holds -> [H, W] bool, empty when
     none: of ``moving`` [H, W] bool (pixels that are neither static scene nor the person),
     after an opening that drops the slivers left along the person's outline, the largest
-    piece within ``size`` (the object's side, pixels) of the hand (MediaPipe's hand points
-    are the palm's, and an object may be held by its corner)."""
+    piece within 1.5 ``size`` (the object's side, pixels) of the hand (MediaPipe's hand
+    points are the palm's, and an object may be held by its corner).
+
+    The piece may be less solid than a GrabCut find (solidity 0.7): where the object's
+    colour happens to match the scene behind it, the static scene bites into it. For a
+    ``convex`` object the piece's convex hull gives those bites back.
+    """
     import cv2
 
     H, W = moving.shape
@@ -364,7 +370,10 @@ def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float) -> np.ndar
     if len(touching) == 0:
         return np.zeros((H, W), bool)
     best = touching[np.argmax(stats[touching, cv2.CC_STAT_AREA])]
-    return fill_holes(comp == best)
+    piece = fill_holes(comp == best)
+    if solidity(piece) < 0.7:
+        return np.zeros((H, W), bool)
+    return convex_hull(piece) if convex else piece
 
 
 def move_with_hand(mask: np.ndarray, kp0: np.ndarray, kp1: np.ndarray, hand: int) -> np.ndarray:
@@ -493,6 +502,7 @@ class _Tracker:
         self.min_align = min_align
         self.max_hand_frames = max_hand_frames
         self.ref_area = float(prompt_mask.sum())
+        self.convex = solidity(prompt_mask) >= 0.9  # a box, a ball, a bottle; not a mug by its handle
         _, self.s0 = mask_stats(prompt_mask)
         ring = cv2.dilate(prompt_mask.astype(np.uint8), np.ones((5, 5), np.uint8), iterations=max(2, int(0.15 * self.s0.max() / 2))) > 0
         self.distractors = None
@@ -778,11 +788,9 @@ class _Tracker:
             for k in (h, 1 - h):
                 if not _visible(self.hands, t, k):
                     continue
-                seg = moving_at_hand(moving, self.hands[t, k, :2], float(np.sqrt(st.area)))
+                seg = moving_at_hand(moving, self.hands[t, k, :2], float(np.sqrt(st.area)), self.convex)
                 visible = seg & ~hands
-                # Less solid than a GrabCut find may be: where the object's colour happens
-                # to match the scene behind it, the static scene bites into it.
-                if 0.4 * st.area <= visible.sum() <= 2.5 * st.area and solidity(seg) >= 0.7:
+                if 0.4 * st.area <= visible.sum() <= 2.5 * st.area:
                     return _Found(visible, visible, 0.5, "moving", colour_of(visible))
         elif st.carried >= 2 and _visible(self.hands, t, h):
             seg = grabcut_at_hand(rgb, self.hands[t, h, :2], float(np.sqrt(st.area)), hp, static=static)
