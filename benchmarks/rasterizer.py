@@ -21,6 +21,10 @@ where other tenants stretch individual repeats by up to ~40 %; the bar ("met") i
 on the medians. "fwd" is the forward call with grad-enabled inputs (as in training),
 "fwd_bwd" is forward + backward with fixed random upstream gradients on colour, alpha and
 depth (torch.autograd.backward), down to the leaf parameters' .grad.
+
+Both backends run under the OpenMP wait policy the ``cogs`` command uses (``import cogs``
+sets ``OMP_WAIT_POLICY=PASSIVE`` unless the environment says otherwise; reported as
+``omp_wait_policy``): run with ``OMP_WAIT_POLICY=ACTIVE`` to measure spinning workers.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ import sys
 import tempfile
 import time
 
+import cogs  # noqa: F401  (before torch: torch's OpenMP wait policy as the cogs command has it)
 import torch
 
 
@@ -178,6 +183,7 @@ def main() -> None:
         "load_avg_start": [round(x, 2) for x in os.getloadavg()],
         "cpu_count": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
+        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
         "numba_threads": numba.get_num_threads(),
         "numba_threading_layer": None,
         "torch_version": torch.__version__,

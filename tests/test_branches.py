@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -318,3 +320,67 @@ def test_rest_losses_hold_a_resting_object_still_and_leave_the_motion():
         _, q_moving = obj.pose(frames[30:])
     # frames well away from the rest keep their motion
     assert float(quat_geodesic_angle(q_moving, q_moving_before).max()) < 1e-3
+
+
+def test_held_out_interpolation_weights_reproduce_cubic_motion():
+    from cogs.branches.human import _lagrange_neighbours
+
+    trained = torch.ones(20, dtype=torch.bool)
+    trained[[0, 6, 12]] = False
+    frames, w = _lagrange_neighbours(6, trained, per_side=2, max_gap=3)
+    assert frames.tolist() == [4, 5, 7, 8]
+    x = frames.double()
+    for f in (lambda s: 1.0 + 0 * s, lambda s: s, lambda s: s**3 - 2 * s**2):
+        torch.testing.assert_close((w.double() * f(x)).sum(), f(torch.tensor(6.0, dtype=torch.float64)))
+    # one side only (the clip's first frame) or nothing within reach: no interpolation
+    assert _lagrange_neighbours(0, trained, 2, 3) is None
+    far = torch.zeros(20, dtype=torch.bool)
+    far[[2, 15]] = True
+    assert _lagrange_neighbours(8, far, 2, 3) is None
+    assert _lagrange_neighbours(7, trained, 1, 3)[0].tolist() == [5, 8]  # nearest trained on each side
+
+
+def _jittered_human(body_model, T: int = 40, jitter: float = 0.03, seed: int = 0):
+    """A human branch whose input poses are a smooth motion plus per-frame jitter on the
+    refined bones; the training frames' per-frame residuals hold exactly minus that jitter
+    (what an ideal fit finds). Every 6th frame is held out. Returns (branch, true pose)."""
+    cfg = HumanConfig(n_gaussians=500, triplane_resolution=8, triplane_channels=4, per_frame_pose=True)
+    sd = sample_human_seed(body_model, None, cfg, seed=0)
+    g = torch.Generator().manual_seed(seed)
+    major = torch.tensor([body_model.bone_index(b) for b in body_model.major_bones])
+    t = torch.arange(T, dtype=torch.float32)[:, None, None]
+    phase = torch.rand(1, len(major), 3, generator=g) * 6.0
+    true = torch.zeros(T, 104, 3)
+    true[:, major] = 0.3 * torch.sin(0.15 * t + phase)
+    noisy = true.clone()
+    noisy[:, major] += jitter * torch.randn(T, len(major), 3, generator=g)
+    test = list(range(0, T, 6))
+    train = [k for k in range(T) if k not in test]
+    h = HumanBranch(body_model, body_model.default_shape, sd, noisy, torch.zeros(T, 3), cfg, train_frames=train)
+    with torch.no_grad():
+        h.frame_pose_delta[train] = (true - noisy)[train][:, major]
+    return h, true, test
+
+
+def test_held_out_pose_leans_on_fitted_neighbours_when_the_input_jitters(body_model):
+    from cogs.geometry.rotations import axis_angle_to_quat, quat_geodesic_angle
+
+    h, true, test = _jittered_human(body_model)
+    major = h.refined_bones
+    err_in, err_out = [], []
+    for t in test[1:]:  # frame 0 has no neighbour before it
+        pose, transl = h.frame_pose(t)
+        q_true = axis_angle_to_quat(true[t, major])
+        err_in.append(quat_geodesic_angle(axis_angle_to_quat(h.base_pose[t, major]), q_true).mean())
+        err_out.append(quat_geodesic_angle(axis_angle_to_quat(pose[0, major]), q_true).mean())
+    assert torch.stack(err_out).mean() < 0.3 * torch.stack(err_in).mean()
+    # the first frame (neighbours on one side only) keeps its input
+    pose0, _ = h.frame_pose(0)
+    torch.testing.assert_close(pose0, h.base_pose[:1])
+
+
+def test_without_per_frame_pose_held_out_frames_keep_their_corrected_input(body_model):
+    h, _, test = _jittered_human(body_model)
+    h.cfg = dataclasses.replace(h.cfg, per_frame_pose=False)
+    for t in test:
+        torch.testing.assert_close(h.frame_pose(t)[0], h.base_pose[t : t + 1])

@@ -62,6 +62,7 @@ def build_human(scene: Scene, cfg: BranchesConfig, backend: str = "auto", seed: 
     human = HumanBranch(
         body, shape, seed,
         torch.as_tensor(scene.body.pose), torch.as_tensor(scene.body.transl), cfg.human,
+        train_frames=list(scene.split["train"]),
     )
     images = torch.as_tensor(scene.images).float() / 255.0
     frames = _frames_for_color(scene.split["train"], cfg.color_init_frames)

@@ -65,12 +65,19 @@ class HumanConfig:
     """Albedo x irradiance of the posed normal (light fixed in the world; see shading.py)."""
     refine_pose: bool = True
     """Learn corrections of the input body pose and translation."""
-    per_frame_pose: bool = False
+    per_frame_pose: bool = True
     """Also learn a per-frame residual on top of the keyframed correction, for the
-    estimator's frame-to-frame jitter. Only frames that are trained on receive gradients,
-    so a held-out frame's residual stays zero and its pose is never fitted to it. Off by
-    default: on the synthetic benchmark it lowered held-out human IoU 0.834 -> 0.820 (the
-    appearance fits the trained frames' jitter instead of averaging it out)."""
+    estimator's frame-to-frame jitter. Only training frames are fitted; a held-out frame
+    takes the pose its fitted neighbours interpolate to (`held_out_pose`), so it is posed
+    consistently with the frames the appearance was learned on and never fitted to its
+    own image. On the synthetic benchmark (one run each): held-out human IoU 0.817 ->
+    0.841, human-crop PSNR 22.2 -> 22.8 dB; the residuals alone, with held-out frames on
+    their own inputs, gave 0.805."""
+    held_out_neighbours: int = 2
+    """Fitted training frames used on each side of a held-out frame (within
+    `held_out_max_gap` frames): 2 gives a cubic interpolation, 1 a linear one."""
+    held_out_max_gap: int = 3
+    """Farthest neighbour (frames) a held-out frame's interpolation may use."""
     pose_keyframe_every: float = 4.0
     """The corrections are a smooth function of time: linear between keyframes this many
     frames apart. Every training view then updates the correction of its neighbours too,
@@ -194,6 +201,7 @@ class HumanBranch(torch.nn.Module):
         base_pose: Tensor,  # [T, J, 3] input poses
         base_transl: Tensor,  # [T, 3]
         cfg: HumanConfig,
+        train_frames: list[int] | None = None,  # frames the training may fit (None: all)
     ):
         super().__init__()
         # Not registered as a submodule: the body model is shared, rebuilt from its name,
@@ -224,6 +232,10 @@ class HumanBranch(torch.nn.Module):
         self.transl_delta = torch.nn.Parameter(torch.zeros(K, 3))
         self.frame_pose_delta = torch.nn.Parameter(torch.zeros(T, len(major), 3))
         self.frame_transl_delta = torch.nn.Parameter(torch.zeros(T, 3))
+        # Which frames are fitted: a plain attribute rebuilt from the scene's split whenever
+        # the branch is built, not state.
+        self.trained = torch.zeros(T, dtype=torch.bool)
+        self.trained[list(range(T)) if train_frames is None else list(train_frames)] = True
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -245,17 +257,57 @@ class HumanBranch(torch.nn.Module):
     def frame_pose(self, t: float) -> tuple[Tensor, Tensor]:
         """Body pose [1, J, 3] and translation [1, 3] at frame t, corrections included.
 
-        The correction is interpolated between pose keyframes, so a held-out frame gets
-        the correction its training neighbours taught, and no test image is ever fitted.
+        The smooth correction is interpolated between pose keyframes; a training frame adds
+        its own residual (`per_frame_pose`), and a held-out frame then takes its
+        neighbours' fitted poses instead (`held_out_pose`). No test image is ever fitted.
         """
         if not self.cfg.refine_pose:
             return self.base_pose[t : t + 1], self.base_transl[t : t + 1]
+        if self.cfg.per_frame_pose and not bool(self.trained[t]):
+            return self.held_out_pose(t)
         dp, dt = self._refinement(float(t))
         if self.cfg.per_frame_pose:
             dp = dp + self.frame_pose_delta[t : t + 1]
             dt = dt + self.frame_transl_delta[t : t + 1]
         pose = self.base_pose[t : t + 1].index_add(1, self.refined_bones, dp)
         return pose, self.base_transl[t : t + 1] + dt
+
+    @torch.no_grad()
+    def held_out_pose(self, t: int) -> tuple[Tensor, Tensor]:
+        """Pose [1, J, 3] and translation [1, 3] of a frame the training never fitted.
+
+        Every bone and the translation are interpolated from the fitted poses (input,
+        smooth correction and per-frame residual) of the nearest training frames on each
+        side: the Lagrange polynomial through up to `held_out_neighbours` of them per side,
+        quaternions blended per bone. A frame without a training neighbour on both sides
+        within `held_out_max_gap` (the clip's ends) keeps its corrected input. No image of
+        frame t is looked at.
+        """
+        from cogs.geometry.rotations import quat_to_axis_angle
+
+        nb = _lagrange_neighbours(t, self.trained, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
+        if nb is None:
+            dp, dt = self._refinement(float(t))
+            return self.base_pose[t : t + 1].index_add(1, self.refined_bones, dp), self.base_transl[t : t + 1] + dt
+        quats, transl = self._fitted_poses()
+        q, tr = _blend(quats, transl, *nb)
+        return quat_to_axis_angle(q)[None], tr[None]
+
+    def _fitted_poses(self) -> tuple[Tensor, Tensor]:
+        """Every frame's bone rotations [T, J, 4] (wxyz, sign-continuous along time per
+        bone) and translations [T, 3] as the training has them: input, smooth correction
+        and per-frame residual (zero on frames never fitted)."""
+        T = self.base_pose.shape[0]
+        refs = [self._refinement(float(k)) for k in range(T)]
+        dp = torch.cat([r[0] for r in refs])
+        dt = torch.cat([r[1] for r in refs])
+        aa = self.base_pose.index_add(1, self.refined_bones, dp + self.frame_pose_delta)
+        q = axis_angle_to_quat(aa)
+        sign = torch.ones(T, q.shape[1], 1)
+        for k in range(1, T):  # q and -q are one rotation: keep each on its predecessor's side
+            flip = (q[k] * q[k - 1] * sign[k - 1]).sum(-1, keepdim=True) < 0
+            sign[k] = torch.where(flip, -1.0, 1.0)
+        return q * sign, self.base_transl + dt + self.frame_transl_delta
 
     def _refinement(self, t: float) -> tuple[Tensor, Tensor]:
         times = self.pose_key_times
@@ -303,6 +355,35 @@ class HumanBranch(torch.nn.Module):
         if self.cfg.per_frame_pose:  # the jitter residual is held tighter than the smooth correction
             reg = reg + 4.0 * (self.frame_pose_delta.square().sum((1, 2)).mean() + self.frame_transl_delta.square().sum(1).mean())
         return reg
+
+
+def _lagrange_neighbours(t: int, trained: Tensor, per_side: int, max_gap: int) -> tuple[Tensor, Tensor] | None:
+    """(frames [n], weights [n]) interpolating frame t from the nearest trained frames on
+    each side (up to `per_side` each, at most `max_gap` away; the same number on both
+    sides): the Lagrange polynomial through them evaluated at t. None without a trained
+    frame on both sides."""
+    T = trained.shape[0]
+    before = [k for k in range(t - 1, max(t - max_gap, 0) - 1, -1) if bool(trained[k])][:per_side]
+    after = [k for k in range(t + 1, min(t + max_gap, T - 1) + 1) if bool(trained[k])][:per_side]
+    n = min(len(before), len(after))
+    if n == 0:
+        return None
+    xs = before[:n][::-1] + after[:n]
+    w = []
+    for i, xi in enumerate(xs):
+        li = 1.0
+        for j, xj in enumerate(xs):
+            if j != i:
+                li *= (t - xj) / (xi - xj)
+        w.append(li)
+    return torch.tensor(xs), torch.tensor(w, dtype=torch.float32)
+
+
+def _blend(quats: Tensor, transl: Tensor, frames: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
+    """Weighted blend of per-frame rotations [T, J, 4] (sign-continuous, normalised after
+    the weighted sum; fine for the small steps between nearby frames) and translations."""
+    q = torch.nn.functional.normalize((weights[:, None, None] * quats[frames]).sum(0), dim=-1)
+    return q, (weights[:, None] * transl[frames]).sum(0)
 
 
 def visibility_indicator(

@@ -649,7 +649,7 @@ def _bare_human(scene: Scene, cfg: TrainConfig, seed):
     if seed is None:
         seed = sample_human_seed(body, shape, cfg.branches.human, seed=cfg.branches.seed)
     return HumanBranch(body, shape, seed, torch.as_tensor(scene.body.pose), torch.as_tensor(scene.body.transl),
-                       cfg.branches.human)
+                       cfg.branches.human, train_frames=list(scene.split["train"]))
 
 
 def _random_human_seed(scene: Scene, cfg: TrainConfig):
