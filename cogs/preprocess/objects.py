@@ -8,7 +8,8 @@ Two engines:
   first mask (``segment.grabcut_box``); ``tracking.propagate_masks`` carries it through
   the video with motion (SIFT matches, DIS optical flow, the carrying hand, each fitted
   to a local colour model), a whole-frame colour search, and a search next to the hand
-  that carried the object when it is lost. See ``tracking.py``.
+  that carried the object when it is lost, all told by a model of the static scene what
+  cannot be the object and what moved. See ``tracking.py`` and ``background.py``.
 
 The person's mask is a soft prior here, not a hard exclusion: MediaPipe's person mask often
 swallows a held object. The returned object masks and the person masks are made disjoint

@@ -1,7 +1,10 @@
 """The classical object tracker: one prompt mask -> a mask in every frame, no learned weights.
 
-``propagate_masks`` walks away from the prompt frame in both directions. Each frame takes
-the first of three cues that holds (``_Tracker._step``):
+``propagate_masks`` walks away from the prompt frame in both directions. Each frame is
+first compared with the static scene that the frames the pass came through show there
+(``background.StaticScene``): static-scene pixels are never object, and pixels that moved
+and are not the person are object whatever their colour. Then each frame takes the first
+of three cues that holds (``_Tracker._step``):
 
 1. **motion**: the object's last extent is placed where it was, where SIFT matches from
    remembered views carry it (``FeatureBank``), where dense optical flow carries it
@@ -9,17 +12,19 @@ the first of three cues that holds (``_Tracker._step``):
    (``move_with_hand``). Each placement is fitted rigidly (``align_mask``) to this frame's
    probability under a colour model of the object against its own surroundings in the
    last frame; the best fit wins if it fits well and still looks like the object. GrabCut
-   then fits its outline to this frame (``segment.grabcut_from_seed``), and the hands'
-   pixels (``hand_regions``) are taken out of the visible mask;
+   then fits its outline to this frame (``segment.grabcut_from_seed``), what the flow
+   shows unchanged from the object stays object, and the hands' pixels
+   (``hand_regions``) are taken out of the visible mask;
 2. **colour**: the object-sized window with the best mean object probability over the
    whole frame (``locate``), weighted towards the motion prediction and the hands, then
    GrabCut seeded there (a fast or reappearing object: a bounced ball);
-3. **hand**: an object seen carried by a hand is segmented next to that hand, off the
-   person (``segment.grabcut_at_hand``), for a few frames after it was lost: a handled
-   object that turns shows faces no colour model has seen. The find must differ from
-   the previous frame with the background's motion undone (``_Tracker._unchanged``: a
-   patch of background beside the hand does not), and it is tentative until the next
-   frame sees it move with the hand.
+3. **hand**: for a few frames after an object seen carried by a hand was lost, the
+   moving piece off the person at either hand (``moving_at_hand``): a handled object
+   that turns shows faces no colour model has seen. Without a static scene to compare
+   with, GrabCut next to the carrying hand, off the person (``segment.grabcut_at_hand``);
+   that find must differ from the previous frame with the background's motion undone
+   (``_Tracker._unchanged``: a patch of background beside the hand does not), and it is
+   tentative until the next frame sees it move with the hand.
 
 Otherwise the object is hidden and the frame's mask is empty. Then every run of empty
 frames that ends where the object was found again is tracked back into from there.
@@ -520,7 +525,7 @@ class _Tracker:
         self.bank = FeatureBank(images)
         self.bank.pin(prompt_frame, prompt_mask)
         self.scene = None if human_probs is None else StaticScene(images, human_probs, self.bank.static_matches)
-        self.masks = np.zeros((len(images), *prompt_mask.shape), bool)  # the masks found so far (run's)
+        self.masks: np.ndarray | None = None  # [T, H, W] bool: the frames found so far (``run``'s masks)
         self._scene_maps: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}
 
     # -- models -----------------------------------------------------------------------
@@ -586,6 +591,7 @@ class _Tracker:
         writing ``masks``, ``conf`` and ``cues`` in place. ``fill``: only into empty
         frames, stopping at the first frame already found or where the object is lost."""
         T = len(self.images)
+        self.masks = masks
         m0 = masks[start]
         c0, s0 = mask_stats(m0)
         model = self._adapted(start, m0)
@@ -723,9 +729,12 @@ class _Tracker:
         prob_search[hands] *= 0.2
         hands_t = None if self.hands is None else self.hands[t]
         maps = self._static_and_moving(t, direction)
-        static, moving = (np.zeros((H, W), bool),) * 2 if maps is None else maps
-        # What moves and is not the person (nor a hand) is the object, whatever its colour.
-        moving = moving & (hp <= 0.5) & ~hands if hp is not None else moving
+        if maps is None:
+            static, moving = np.zeros((H, W), bool), np.zeros((H, W), bool)
+        else:
+            static, moving = maps
+            # What moved and is not the person (nor a hand) is the object, whatever its colour.
+            moving = moving & (hp <= 0.5) & ~hands
         prob_search[static] = 0.0  # the static scene is never the object
         # A carried object stays with its hand (a look-alike across the room is not it):
         # the search keeps to the hand, if visible, and near the motion prediction.
@@ -888,7 +897,6 @@ def propagate_masks(
     found = [""] * T
     masks[prompt_frame], conf[prompt_frame], found[prompt_frame] = prompt_mask, 1.0, "prompt"
     tracker = _Tracker(images, prompt_mask, prompt_frame, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames)
-    tracker.masks = masks
     done = [1]
 
     def tick():
