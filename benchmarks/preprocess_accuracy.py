@@ -44,6 +44,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cogs  # noqa: F401  (before torch: torch's OpenMP wait policy as the cogs command has it)
 import numpy as np
 import torch
 

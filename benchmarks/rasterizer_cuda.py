@@ -35,6 +35,7 @@ import statistics
 import sys
 import time
 
+import cogs  # noqa: F401  (before torch: torch's OpenMP wait policy as the cogs command has it)
 import torch
 
 
