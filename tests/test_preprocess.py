@@ -650,6 +650,77 @@ def test_missing_keypoint_frames_are_filled_by_interpolation():
     assert fill_missing(a).ravel().tolist() == [0.0, 1.0, 2.0, 2.0]
 
 
+# -- masks from the fitted body --------------------------------------------------------
+
+
+def test_body_parts_are_named_for_anny_and_smpl_bones():
+    from cogs.preprocess.bodymasks import bone_parts
+
+    names = ["root", "spine01", "upperarm01.L", "lowerarm01.L", "lowerarm02.R", "wrist.R", "finger3-1.L", "metacarpal2.R",
+             "left_shoulder", "left_elbow", "right_wrist", "left_hand", "head"]
+    assert bone_parts(names).tolist() == [0, 0, 0, 1, 1, 2, 2, 2, 0, 1, 2, 2, 0]
+
+
+def _body_masks_frame():
+    """A person (shirt and skin) whose mask misses the forearm and bleeds over the scene,
+    holding a green box whose mask takes in two fingers."""
+    H, W = 160, 200
+    rng = np.random.default_rng(0)
+    img = np.clip(np.full((H, W, 3), (150, 120, 90)) + rng.integers(-10, 10, (H, W, 3)), 0, 255).astype(np.uint8)
+    parts = np.zeros((H, W), np.uint8)
+    torso = np.zeros((H, W), bool)
+    torso[20:150, 60:100] = True
+    img[torso] = (40, 50, 150)
+    parts[torso] = 1
+    img[22:40, 70:90] = (230, 180, 160)  # the face's skin
+    forearm = np.zeros((H, W), bool)
+    forearm[90:100, 100:140] = True
+    img[forearm] = (230, 180, 160)
+    parts[forearm] = 2
+    box = np.zeros((H, W), bool)
+    box[80:125, 140:185] = True
+    img[box] = (40, 170, 60)
+    fingers = np.zeros((H, W), bool)
+    fingers[88:92, 140:160] = fingers[96:100, 140:158] = True
+    img[fingers] = (230, 180, 160)
+    box &= ~fingers
+    parts[85:103, 138:162] = 3  # the fitted hand, a little larger than the fingers
+    person = torso.copy()
+    person[90:100, 100:110] = True  # MediaPipe has only the elbow's end of the forearm
+    bleed = np.zeros((H, W), bool)
+    bleed[30:140, 55:60] = True  # a band of scene along the shirt
+    person |= bleed
+    obj = box | fingers
+    return img, person, obj, parts, torso, forearm, box, fingers, bleed
+
+
+def test_the_fitted_body_adds_a_missed_forearm_and_takes_fingers_and_bleed_out():
+    from cogs.preprocess.bodymasks import refine_frame
+
+    img, person, obj, parts, torso, forearm, box, fingers, bleed = _body_masks_frame()
+    human, obj2, info = refine_frame(img, person, obj, parts)
+    assert not (human & obj2).any()
+    assert (human & forearm).sum() >= 0.95 * forearm.sum()  # the forearm joins the person
+    assert not (obj2 & fingers).any() and (obj2 & box).sum() == box.sum()  # the box keeps its pixels, not the fingers
+    assert not (human & bleed).any() and (human & torso).sum() == torso.sum()  # the bleed goes, the shirt stays
+    assert info["forearm_px"] > 0 and info["finger_px"] == fingers.sum() and info["bleed_px"] == bleed.sum()
+
+
+def test_without_a_fitted_body_or_with_given_masks_the_masks_only_become_disjoint():
+    from cogs.preprocess.bodymasks import refine_masks
+
+    img, person, obj, parts, *_ = _body_masks_frame()
+    human, obj2, stats = refine_masks(img[None], person[None], obj[None], np.zeros_like(parts)[None], np.array([True]))
+    assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all()
+    human, obj2, _ = refine_masks(img[None], person[None], obj[None], parts[None], np.array([False]))  # no detection: untouched
+    assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all()
+    human, obj2, _ = refine_masks(img[None], person[None], None, parts[None], np.array([True]))
+    assert obj2 is None and human[0].sum() > 0
+    # Masks from the user or SAM2 are kept: no fingers taken out, no person outline moved.
+    human, obj2, _ = refine_masks(img[None], person[None], obj[None], parts[None], np.array([True]), fingers=False, person_edges=False)
+    assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all()
+
+
 # -- object pose ----------------------------------------------------------------------
 
 
