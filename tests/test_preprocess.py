@@ -721,6 +721,41 @@ def test_without_a_fitted_body_or_with_given_masks_the_masks_only_become_disjoin
     assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all()
 
 
+def test_an_object_held_in_front_of_the_body_grows_by_the_pixels_that_move_with_it():
+    import cv2
+
+    from cogs.preprocess.bodymasks import motion_grow
+
+    rng = np.random.default_rng(0)
+    H, W = 160, 200
+    shirt_tex = cv2.GaussianBlur(rng.integers(0, 255, (H + 40, W + 40, 3)).astype(np.uint8), (5, 5), 0)
+    box_tex = cv2.GaussianBlur(rng.integers(0, 255, (44, 44, 3)).astype(np.uint8), (5, 5), 0)
+    images, boxes = [], []
+    for t in range(3):
+        img = shirt_tex[3 * t:3 * t + H, 10:10 + W].copy()  # the shirt moves up 3 px a frame
+        x0 = 60 + 5 * t  # the box moves right 5 px a frame, in front of the shirt
+        img[60:104, x0:x0 + 44] = box_tex
+        box = np.zeros((H, W), bool)
+        box[60:104, x0:x0 + 44] = True
+        images.append(img)
+        boxes.append(box)
+    images, boxes = np.stack(images), np.stack(boxes)
+    person = np.zeros((3, H, W), bool)
+    person[:, 10:150, 20:180] = True  # MediaPipe's mask takes the box in
+    obj = boxes.copy()
+    obj[1:, :, :] &= np.arange(W)[None, None, :] < (60 + 5 * np.arange(3))[1:, None, None] + 22  # a face missed: half the box
+    parts = np.zeros((3, H, W), np.uint8)
+    grown, added = motion_grow(images, person, obj, parts, np.ones(3, bool))
+    assert added > 0
+    for t in (1, 2):
+        missed = boxes[t] & ~obj[t]
+        assert (grown[t] & missed).sum() >= 0.6 * missed.sum()  # the missed face moves with the box: it joins
+        assert (grown[t] & ~boxes[t]).sum() <= 0.05 * boxes[t].sum()  # the shirt moves otherwise: it stays out
+    # Off the person (not held in front of the body) the test does not apply.
+    grown, added = motion_grow(images, np.zeros_like(person), obj, parts, np.ones(3, bool))
+    assert added == 0 and (grown == obj).all()
+
+
 # -- object pose ----------------------------------------------------------------------
 
 
