@@ -756,6 +756,32 @@ def test_an_object_held_in_front_of_the_body_grows_by_the_pixels_that_move_with_
     assert added == 0 and (grown == obj).all()
 
 
+def test_a_held_object_that_suddenly_shrinks_is_filled_back_in_from_the_previous_frame():
+    import cv2
+
+    from cogs.preprocess.bodymasks import motion_grow
+
+    rng = np.random.default_rng(1)
+    H, W = 160, 200
+    tex = cv2.GaussianBlur(rng.integers(0, 255, (H, W + 20, 3)).astype(np.uint8), (5, 5), 0)
+    # Box and shirt move together (2 px right a frame): the flow cannot tell them apart.
+    images = np.stack([tex[:, 20 - 2 * t:20 - 2 * t + W] for t in range(2)])
+    boxes = np.zeros((2, H, W), bool)
+    for t in range(2):
+        boxes[t, 60:104, 60 + 2 * t:104 + 2 * t] = True
+    person = np.zeros((2, H, W), bool)
+    person[:, 10:150, 20:180] = True
+    obj = boxes.copy()
+    obj[1, :, 84:] = False  # the tracker keeps half the box in frame 1
+    parts = np.zeros((2, H, W), np.uint8)
+    grown, _ = motion_grow(images, person, obj, parts, np.ones(2, bool))
+    assert (grown[1] & boxes[1]).sum() >= 0.95 * boxes[1].sum()
+    assert (grown[1] & ~boxes[1]).sum() <= 0.02 * boxes[1].sum()
+    # Not held in front of the body (off the person mask): left as it is.
+    grown, _ = motion_grow(images, np.zeros_like(person), obj, parts, np.ones(2, bool))
+    assert (grown == obj).all()
+
+
 # -- object pose ----------------------------------------------------------------------
 
 
