@@ -22,9 +22,15 @@ on the medians. "fwd" is the forward call with grad-enabled inputs (as in traini
 "fwd_bwd" is forward + backward with fixed random upstream gradients on colour, alpha and
 depth (torch.autograd.backward), down to the leaf parameters' .grad.
 
-Both backends run under the OpenMP wait policy the ``cogs`` command uses (``import cogs``
-sets ``OMP_WAIT_POLICY=PASSIVE`` unless the environment says otherwise; reported as
-``omp_wait_policy``): run with ``OMP_WAIT_POLICY=ACTIVE`` to measure spinning workers.
+The OpenMP wait policy decides both sides of the speed-up, in opposite directions, so each
+backend is timed under the policy its users run it with. The cpu backend runs in this
+process under the policy the ``cogs`` command uses (``import cogs`` sets
+``OMP_WAIT_POLICY=PASSIVE`` unless the environment says otherwise; reported as
+``omp_wait_policy``). The torch reference, a long chain of small parallel torch ops that
+runs 2.5x slower when its workers sleep between them, is timed in a child process that
+imports torch before cogs with no policy in the environment, i.e. OpenMP's default, as a
+plain torch program has it (``torch_omp_wait_policy``). ``--torch-policy same`` times it in
+this process instead, under the cpu backend's policy.
 """
 
 from __future__ import annotations
@@ -104,6 +110,58 @@ class Case:
             torch.autograd.backward([out.colors, out.alpha, out.depth], self.w)
 
 
+def time_backend(case: Case, name: str, repeats: int, pairs: int) -> dict:
+    case.run(name, True)  # warm caches / allocator
+    fwd = median_ms(lambda: case.run(name, False), repeats)
+    fb_all = times_ms(lambda: case.run(name, True), repeats)
+    fb = statistics.median(fb_all)
+    log(f"  {name}: fwd {fwd:.1f} ms, fwd+bwd {fb:.1f} ms ({pairs / fb / 1e3:.0f} Mpairs/s)")
+    return {
+        "fwd_ms": round(fwd, 2),
+        "fwd_bwd_ms": round(fb, 2),
+        "fwd_bwd_min_ms": round(min(fb_all), 2),
+        "fwd_mpairs_per_s": round(pairs / fwd / 1e3, 1),
+        "fwd_bwd_mpairs_per_s": round(pairs / fb / 1e3, 1),
+    }
+
+
+def torch_cases(sizes, counts, repeats: int, budget_s: float) -> dict:
+    """{"WxH/N": timings or {"skipped": why}} for the torch reference over all cases; a case
+    whose fwd+bwd, predicted from the previous count at the same size, exceeds the budget
+    is skipped."""
+    from cogs.render import count_pairs
+
+    out = {}
+    for width, height in sizes:
+        s_per_pair = None
+        for n in counts:
+            case = Case(n, width, height)
+            s = case.scene
+            pairs = count_pairs(s.means, s.quats, s.scales, s.viewmat, s.K, width, height)
+            key = f"{width}x{height}/{n}"
+            if s_per_pair is not None and s_per_pair * pairs > budget_s:
+                out[key] = {"skipped": f"predicted fwd+bwd {s_per_pair * pairs:.0f} s from the "
+                                       "previous size exceeds --torch-budget-s"}
+                log(f"{key}: torch skipped")
+                continue
+            log(f"{key}: torch")
+            out[key] = time_backend(case, "torch", repeats, pairs)
+            s_per_pair = out[key]["fwd_bwd_ms"] * 1e-3 / pairs
+    return out
+
+
+def torch_cases_in_child(sizes, counts, repeats: int, budget_s: float) -> dict:
+    """`torch_cases` in a fresh interpreter whose torch loads OpenMP before cogs can set a
+    wait policy, with none in its environment: OpenMP's default, as plain torch has it."""
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    code = ("import torch, runpy, sys; sys.argv = sys.argv[1:]; "
+            "runpy.run_path(sys.argv[0], run_name='__main__')")
+    argv = [__file__, "--torch-child", json.dumps([sizes, counts, repeats, budget_s])]
+    res = subprocess.run([sys.executable, "-c", code, *argv], env=env, stdout=subprocess.PIPE,
+                         text=True, check=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
 def cpu_profile(case: Case, repeats: int) -> dict:
     """Median ms of each stage of the cpu backend's forward+backward, run one by one."""
     import numpy as np
@@ -165,7 +223,15 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=None, help="cpu repeats (default 15, quick 2)")
     ap.add_argument("--torch-budget-s", type=float, default=60.0,
                     help="skip a torch case whose predicted fwd+bwd exceeds this")
+    ap.add_argument("--torch-policy", choices=("own", "same"), default="own",
+                    help="own: time the torch reference in a child process under OpenMP's "
+                         "default wait policy; same: in this process, under the cpu backend's")
+    ap.add_argument("--torch-child", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.torch_child:
+        sizes, counts, repeats, budget = json.loads(args.torch_child)
+        print(json.dumps(torch_cases([tuple(x) for x in sizes], counts, repeats, budget)))
+        return
 
     import numba
 
@@ -184,6 +250,8 @@ def main() -> None:
         "cpu_count": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
         "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+        "torch_omp_wait_policy": (os.environ.get("OMP_WAIT_POLICY") if args.torch_policy == "same"
+                                  else "OpenMP default (child process, torch loaded before cogs)"),
         "numba_threads": numba.get_num_threads(),
         "numba_threading_layer": None,
         "torch_version": torch.__version__,
@@ -204,9 +272,14 @@ def main() -> None:
     log("matmul ...")
     result["matmul_2048_f32_gflops"] = round(matmul_gflops(repeats=3 if args.quick else 7), 1)
 
+    log("torch reference ...")
+    if args.torch_policy == "own":
+        torch_rows = torch_cases_in_child(sizes, counts, torch_reps, args.torch_budget_s)
+    else:
+        torch_rows = torch_cases(sizes, counts, torch_reps, args.torch_budget_s)
+
     cases = []
     for width, height in sizes:
-        torch_s_per_pair = None
         for n in counts:
             case = Case(n, width, height)
             s = case.scene
@@ -214,31 +287,9 @@ def main() -> None:
             row = {"width": width, "height": height, "n_gaussians": n, "pairs": pairs,
                    "load_avg_1min": round(os.getloadavg()[0], 2)}
             log(f"{width}x{height} N={n}: pairs={pairs:,}")
-            for name in ("cpu", "torch"):
-                if name == "torch" and torch_s_per_pair is not None:
-                    predicted = torch_s_per_pair * pairs
-                    if predicted > args.torch_budget_s:
-                        row["torch"] = {"skipped": f"predicted fwd+bwd {predicted:.0f} s from the "
-                                                   f"previous size exceeds --torch-budget-s"}
-                        log(f"  torch skipped (predicted {predicted:.0f} s)")
-                        continue
-                r = reps if name == "cpu" else torch_reps
-                case.run(name, True)  # warm caches / allocator
-                fwd = median_ms(lambda: case.run(name, False), r)
-                fb_all = times_ms(lambda: case.run(name, True), r)
-                fb = statistics.median(fb_all)
-                row[name] = {
-                    "fwd_ms": round(fwd, 2),
-                    "fwd_bwd_ms": round(fb, 2),
-                    "fwd_bwd_min_ms": round(min(fb_all), 2),
-                    "fwd_mpairs_per_s": round(pairs / fwd / 1e3, 1),
-                    "fwd_bwd_mpairs_per_s": round(pairs / fb / 1e3, 1),
-                }
-                if name == "torch":
-                    torch_s_per_pair = fb * 1e-3 / pairs
-                log(f"  {name}: fwd {fwd:.1f} ms, fwd+bwd {fb:.1f} ms "
-                    f"({pairs / fb / 1e3:.0f} Mpairs/s)")
-            if "fwd_ms" in row.get("torch", {}):
+            row["cpu"] = time_backend(case, "cpu", reps, pairs)
+            row["torch"] = torch_rows[f"{width}x{height}/{n}"]
+            if "fwd_ms" in row["torch"]:
                 row["speedup_cpu_over_torch"] = {
                     "fwd": round(row["torch"]["fwd_ms"] / row["cpu"]["fwd_ms"], 1),
                     "fwd_bwd": round(row["torch"]["fwd_bwd_ms"] / row["cpu"]["fwd_bwd_ms"], 1),
