@@ -45,13 +45,11 @@ def interpolated_truth(motion, test: list[int], n_frames: int, fallback):
     import torch
 
     from cogs.branches.human import _blend, _lagrange_neighbours
-    from cogs.geometry.rotations import axis_angle_to_quat, quat_to_axis_angle
+    from cogs.geometry.rotations import axis_angle_to_quat, quat_sign_continuous, quat_to_axis_angle
 
     trained = torch.ones(n_frames, dtype=torch.bool)
     trained[test] = False
-    q = axis_angle_to_quat(torch.as_tensor(motion.pose))
-    for k in range(1, n_frames):  # sign-continuous along time, as the branch keeps them
-        q[k] = torch.where((q[k] * q[k - 1]).sum(-1, keepdim=True) < 0, -q[k], q[k])
+    q = quat_sign_continuous(axis_angle_to_quat(torch.as_tensor(motion.pose)))  # as the branch keeps them
     tr = torch.as_tensor(motion.transl)
     pose, transl = fallback[0].copy(), fallback[1].copy()
     for t in test:

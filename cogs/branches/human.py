@@ -32,6 +32,7 @@ from cogs.geometry.rotations import (
     quat_geodesic_angle,
     quat_multiply,
     quat_normalize,
+    quat_sign_continuous,
     rotmat_from_two_vectors,
     quat_to_rotmat,
     rotmat_to_quat,
@@ -302,12 +303,7 @@ class HumanBranch(torch.nn.Module):
         dp = torch.cat([r[0] for r in refs])
         dt = torch.cat([r[1] for r in refs])
         aa = self.base_pose.index_add(1, self.refined_bones, dp + self.frame_pose_delta)
-        q = axis_angle_to_quat(aa)
-        sign = torch.ones(T, q.shape[1], 1)
-        for k in range(1, T):  # q and -q are one rotation: keep each on its predecessor's side
-            flip = (q[k] * q[k - 1] * sign[k - 1]).sum(-1, keepdim=True) < 0
-            sign[k] = torch.where(flip, -1.0, 1.0)
-        return q * sign, self.base_transl + dt + self.frame_transl_delta
+        return quat_sign_continuous(axis_angle_to_quat(aa)), self.base_transl + dt + self.frame_transl_delta
 
     def _refinement(self, t: float) -> tuple[Tensor, Tensor]:
         times = self.pose_key_times

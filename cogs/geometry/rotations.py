@@ -113,6 +113,16 @@ def quat_geodesic_angle(a: Tensor, b: Tensor) -> Tensor:
     return 2.0 * torch.atan2(vnorm, w)
 
 
+def quat_sign_continuous(q: Tensor) -> Tensor:
+    """Quaternions [T, ..., 4] along time, each q[k] flipped to the side of q[k-1]
+    (elementwise over the middle dimensions): q and -q are one rotation, and blending or
+    interpolating along T needs neighbours on the same side."""
+    q = q.clone()
+    for k in range(1, q.shape[0]):
+        q[k] = torch.where((q[k] * q[k - 1]).sum(-1, keepdim=True) < 0, -q[k], q[k])
+    return q
+
+
 def rotmat_geodesic_angle(Ra: Tensor, Rb: Tensor) -> Tensor:
     """Angle in radians between two rotation matrices, in [0, pi]."""
     rel = Ra.transpose(-1, -2) @ Rb

@@ -27,6 +27,7 @@ from cogs.geometry.rotations import (
     quat_geodesic_angle,
     quat_multiply,
     quat_normalize,
+    quat_sign_continuous,
     quat_to_axis_angle,
     slerp,
 )
@@ -238,10 +239,7 @@ def _sign_continuous(q: Tensor) -> Tensor:
     q = q.clone()
     if q[0, 0] < 0:
         q[0] = -q[0]
-    for i in range(1, q.shape[0]):
-        if (q[i] * q[i - 1]).sum() < 0:
-            q[i] = -q[i]
-    return q
+    return quat_sign_continuous(q)
 
 
 def _refine_rotations(

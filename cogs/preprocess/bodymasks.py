@@ -116,6 +116,16 @@ def _disk(r: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
 
+def _touching(cand: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The connected pieces of ``cand`` [H, W] bool that touch ``mask`` (8-neighbours)."""
+    n, lab = cv2.connectedComponents(cand.astype(np.uint8))
+    if n <= 1:
+        return np.zeros_like(cand, dtype=bool)
+    near = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    ids = np.unique(lab[near & cand])
+    return np.isin(lab, ids[ids > 0])
+
+
 def _fit_affine(xy: np.ndarray, target: np.ndarray) -> np.ndarray:
     """[3, 2] affine map xy -> target, least squares refitted twice on the points within 2x the median residual."""
     A = np.c_[xy, np.ones(len(xy))]
@@ -132,7 +142,6 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
 
     `flow` [H, W, 2] is the flow from this frame back to the previous one, `arm` the fitted
     forearm and hand (neither a sample of the person's motion nor a candidate)."""
-    H, W = obj.shape
     add = np.zeros_like(obj)
     area = int(obj.sum())
     if area < 100:
@@ -169,18 +178,14 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
         cand[ys[follows], xs[follows]] = True
         cand &= person & ~obj & ~arm
     cand = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, _disk(1)) > 0
-    n, lab = cv2.connectedComponents(cand.astype(np.uint8))
-    if n > 1:
-        touching = cv2.dilate(o8, np.ones((3, 3), np.uint8)) > 0
-        ids = np.unique(lab[touching & cand])
-        add = np.isin(lab, ids[ids > 0])
-    return add
+    return _touching(cand, obj)
 
 
 def motion_grow(images: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: np.ndarray,
                 detected: np.ndarray) -> tuple[np.ndarray, int]:
     """Every frame's object mask grown by `motion_grow_frame` (see the module docstring); (masks, pixels added)."""
     obj = obj.copy()
+    arm = parts >= 2
     grey = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in images]
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     added = 0
@@ -188,25 +193,25 @@ def motion_grow(images: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
     for t in range(1, len(images)):
         if not detected[t] or obj[t].sum() < 100:
             continue
-        flow = None
+        flow = dis.calc(grey[t], grey[t - 1], None)
+        # What this test added in the previous frame, carried along the flow where its
+        # colour is unchanged (used by the first round only).
+        carried = None
+        if grown[t - 1].any():
+            H, W = grey[t].shape
+            yy, xx = np.mgrid[:H, :W].astype(np.float32)
+            mx, my = xx + flow[..., 0], yy + flow[..., 1]
+            back = cv2.remap(grown[t - 1].astype(np.uint8), mx, my, cv2.INTER_NEAREST) > 0
+            col = cv2.remap(images[t - 1], mx, my, cv2.INTER_LINEAR)
+            carried = back & (np.abs(col.astype(np.int16) - images[t].astype(np.int16)).max(2) <= 12)
         for k in range(MOTION_ROUNDS):
-            carried = None
-            if flow is None:
-                flow = dis.calc(grey[t], grey[t - 1], None)
-                if grown[t - 1].any():
-                    H, W = grey[t].shape
-                    yy, xx = np.mgrid[:H, :W].astype(np.float32)
-                    mx, my = xx + flow[..., 0], yy + flow[..., 1]
-                    back = cv2.remap(grown[t - 1].astype(np.uint8), mx, my, cv2.INTER_NEAREST) > 0
-                    col = cv2.remap(images[t - 1], mx, my, cv2.INTER_LINEAR)
-                    carried = back & (np.abs(col.astype(np.int16) - images[t].astype(np.int16)).max(2) <= 12)
-            add = motion_grow_frame(obj[t], person[t], parts[t] >= 2, flow, carried)
+            add = motion_grow_frame(obj[t], person[t], arm[t], flow, carried if k == 0 else None)
             obj[t] |= add
             grown[t] |= add
             added += int(add.sum())
             if add.sum() < 0.01 * obj[t].sum():
                 break
-        add = _keep_area(person, obj, parts >= 2, flow, t)
+        add = _keep_area(person, obj, arm, flow, t)
         obj[t] |= add
         grown[t] |= add
         added += int(add.sum())
@@ -229,13 +234,7 @@ def _keep_area(person: np.ndarray, obj: np.ndarray, arm: np.ndarray, flow: np.nd
     m = _fit_affine(xy, xy + flow[ys, xs])  # this frame -> the previous one
     H, W = cur.shape
     back = cv2.warpAffine(prev.astype(np.uint8), m.T, (W, H), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP) > 0
-    cand = back & person[t] & ~arm[t] & ~cur
-    n, lab = cv2.connectedComponents(cand.astype(np.uint8))
-    if n > 1:
-        touching = cv2.dilate(cur.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-        ids = np.unique(lab[touching & cand])
-        add = np.isin(lab, ids[ids > 0])
-    return add
+    return _touching(back & person[t] & ~arm[t] & ~cur, cur)
 
 
 def refine_frame(image: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: np.ndarray, *, fingers: bool = True,
@@ -266,14 +265,9 @@ def refine_frame(image: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
     if person_edges and arm.any() and person.any():
         near = cv2.dilate((person | body).astype(np.uint8), _disk(max(3, round(0.025 * side)))) > 0
         p_person = _posterior(image, _hist(image, person & ~obj), _hist(image, ~near & ~obj))
-        cand = arm & (p_person > PERSON_P)
-        n, lab = cv2.connectedComponents(cand.astype(np.uint8))
-        if n > 1:
-            touching = cv2.dilate(person.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-            ids = np.unique(lab[touching & cand])
-            add = np.isin(lab, ids[ids > 0])
-            person = person | add
-            info["forearm_px"] = int(add.sum())
+        add = _touching(arm & (p_person > PERSON_P), person)
+        person = person | add
+        info["forearm_px"] = int(add.sum())
     # MediaPipe's mask bleeding over the scene: off the fitted body and coloured like the
     # scene around the mask, not like the person inside the body.
     off = person & ~body & ~obj

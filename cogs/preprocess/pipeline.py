@@ -245,9 +245,9 @@ class _Runner:
 
             if has_object:
                 # The trajectory fits the object's whole outline: the tracker's masks (not the
-                # masks step's), with the fingers in front of it (they hide the object, they do not shrink it). Fitted to
-                # the masks without them it comes out smaller, so nearer: centre error 16 -> 17.5 %
-                # of the depth on the 30-frame benchmark clip.
+                # masks step's), fingers included (they hide the object, they do not shrink
+                # it). Fitted to the masks without them it comes out smaller, so nearer:
+                # centre error 16 -> 17.5 % of the depth on the 30-frame benchmark clip.
                 op, _ = self._step(ui, 7, "object_pose", {}, ["objects", "masks", "body"],
                                    lambda lb: self._object_pose(lb, ui, ob, human_masks, bo, K))
             else:
