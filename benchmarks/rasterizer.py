@@ -52,11 +52,17 @@ def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def times_ms(fn, repeats: int) -> list[float]:
+def times_ms(fn, repeats: int, sync=None) -> list[float]:
+    """Wall-clock ms of each of ``repeats`` calls; ``sync`` (e.g. torch.cuda.synchronize)
+    runs before and after each so asynchronous work is counted."""
     times = []
     for _ in range(repeats):
+        if sync:
+            sync()
         t0 = time.perf_counter()
         fn()
+        if sync:
+            sync()
         times.append(1e3 * (time.perf_counter() - t0))
     return times
 
@@ -89,25 +95,30 @@ def compile_times() -> dict:
 
 
 class Case:
-    def __init__(self, n: int, width: int, height: int):
+    """One benchmark scene on ``device``: leaf parameters as an optimiser holds them, the
+    camera, and fixed random upstream gradients (``scene`` stays on the host)."""
+
+    def __init__(self, n: int, width: int, height: int, device: torch.device | str = "cpu"):
         from cogs.render.scenes import splat_scene
 
         self.scene = splat_scene(n, width, height, seed=0)
+        self.width, self.height = width, height
+        self.viewmat, self.K = self.scene.viewmat.to(device), self.scene.K.to(device)
         g = torch.Generator().manual_seed(1)
-        self.w = [torch.randn(height, width, c, generator=g) for c in (3, 1, 1)]
-        # leaf parameters, as an optimiser holds them
-        self.params = [t.clone().requires_grad_(True) for t in self.scene.gaussians()]
+        self.w = [torch.randn(height, width, c, generator=g).to(device) for c in (3, 1, 1)]
+        self.params = [t.to(device).clone().requires_grad_(True) for t in self.scene.gaussians()]
 
-    def run(self, backend: str, backward: bool) -> None:
+    def run(self, backend: str, backward: bool):
         from cogs.render import rasterize
 
         for p in self.params:
             p.grad = None
-        out = rasterize(*self.params, *self.scene.camera(), backend=backend)
+        out = rasterize(*self.params, self.viewmat, self.K, self.width, self.height, backend=backend)
         if backward:
             # random upstream gradients on colour, alpha and depth, fed straight in: the
             # measurement is the rasterizer's backward, not a loss's torch ops
             torch.autograd.backward([out.colors, out.alpha, out.depth], self.w)
+        return out
 
 
 def time_backend(case: Case, name: str, repeats: int, pairs: int) -> dict:

@@ -37,6 +37,7 @@ import time
 
 import cogs  # noqa: F401  (before torch: torch's OpenMP wait policy as the cogs command has it)
 import torch
+from rasterizer import Case, times_ms  # the CPU benchmark beside this file: its scenes and timer
 
 
 def log(msg: str) -> None:
@@ -44,37 +45,8 @@ def log(msg: str) -> None:
 
 
 def median_ms(fn, repeats: int, sync) -> tuple[float, float]:
-    times = []
-    for _ in range(repeats):
-        sync()
-        t0 = time.perf_counter()
-        fn()
-        sync()
-        times.append(1e3 * (time.perf_counter() - t0))
+    times = times_ms(fn, repeats, sync)
     return statistics.median(times), min(times)
-
-
-class Case:
-    def __init__(self, n: int, width: int, height: int, device: torch.device):
-        from cogs.render.scenes import splat_scene
-
-        s = splat_scene(n, width, height, seed=0)
-        self.width, self.height = width, height
-        self.viewmat, self.K = s.viewmat.to(device), s.K.to(device)
-        self.params = [t.to(device).clone().requires_grad_(True) for t in s.gaussians()]
-        g = torch.Generator().manual_seed(1)
-        self.w = [torch.randn(height, width, c, generator=g).to(device) for c in (3, 1, 1)]
-
-    def run(self, backend: str, backward: bool):
-        from cogs.render import rasterize
-
-        for p in self.params:
-            p.grad = None
-        out = rasterize(*self.params, self.viewmat, self.K, self.width, self.height,
-                        backend=backend)
-        if backward:
-            torch.autograd.backward([out.colors, out.alpha, out.depth], self.w)
-        return out
 
 
 def parity(case: Case) -> dict:
