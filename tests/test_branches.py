@@ -96,6 +96,16 @@ def test_seed_lies_on_the_canonical_surface_with_tangent_discs(body_model, small
     assert cos.min() > 0.999
 
 
+def test_seed_inset_moves_the_centres_inside_along_the_outward_normal(body_model):
+    cfg = HumanConfig(n_gaussians=4000)
+    on = sample_human_seed(body_model, None, cfg, seed=0)
+    inset = sample_human_seed(body_model, None, dataclasses.replace(cfg, seed_inset_m=0.01), seed=0)
+    torch.testing.assert_close(inset.means, on.means - 0.01 * on.normals, rtol=0, atol=1e-6)
+    # Outward normals: over a closed surface sampled by area, the mean of (x - c) . n is
+    # 3 volume / area > 0 (divergence theorem), so -n points into the body.
+    assert ((on.means - on.means.mean(0)) * on.normals).sum(-1).mean() > 0.01
+
+
 def test_untrained_field_reproduces_the_seed(small_human):
     st = small_human.decode()
     torch.testing.assert_close(st.scales, small_human.seed_scales)

@@ -61,6 +61,10 @@ def test_six_stages_train_evaluate_and_export(small_synthetic, tmp_path):
     assert 5 < m["full"]["psnr"] < 60 and 0 < m["full"]["ssim"] <= 1
     assert 0 <= m["decomposition"]["human_iou"] <= 1
     assert m["object_pose_error"]["rotation_deg"] >= 0
+    bpe = m["body_pose_error"]["joint_px"]
+    assert set(bpe) == {"input_train", "input_test", "fitted_train", "fitted_test"}
+    assert bpe["input_train"] > 0.2  # the scene's input poses carry the synthetic noise
+    assert all(np.isfinite(v) and v >= 0 for v in bpe.values()) and bpe["fitted_train"] != bpe["input_train"]
     assert set(m["stage_seconds"]) == {"I", "II", "III", "IV", "V", "VI"}
     if m["full"]["lpips"] is None:
         assert any("lpips" in n for n in m["notes"])  # a null always says why
@@ -77,6 +81,19 @@ def test_single_stage_ablation_trains_all_branches_jointly(small_synthetic, tmp_
 
 def _state(run: Path) -> dict:
     return ckpt.load(run / "checkpoints" / "last.pt")["branches"]
+
+
+def test_compositional_stages_can_hold_the_fitted_body_poses(small_synthetic, tmp_path):
+    """compose_pose_lr_scale=0: V and VI leave the pose corrections where stage II put them
+    while the rest of the human keeps training."""
+    run = tmp_path / "held"
+    _train(small_synthetic, run, ["compose_pose_lr_scale=0.0"])
+    after_ii = ckpt.load(run / "checkpoints" / "stage_II.pt")["branches"]["human"]
+    after_vi = ckpt.load(run / "checkpoints" / "stage_VI.pt")["branches"]["human"]
+    for k in ("pose_delta", "frame_pose_delta", "transl_delta", "frame_transl_delta"):
+        assert after_ii[k].abs().max() > 0, k  # the human stages did fit them
+        torch.testing.assert_close(after_vi[k], after_ii[k], rtol=0, atol=0, msg=k)
+    assert not torch.equal(after_vi["color_residual"], after_ii["color_residual"])
 
 
 def test_killed_run_resumes_to_the_same_parameters(small_synthetic, tmp_path):

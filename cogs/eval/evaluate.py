@@ -106,6 +106,8 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
         metrics["novel_view"] = _novel_views(comp, scene, notes, out if save_renders else None, show_progress)
         if scene.has_object and comp.object is not None:
             metrics["object_pose_error"] = _object_pose_error(comp.object, gt.object, test, list(scene.split["train"]))
+        if comp.human is not None and test:
+            metrics["body_pose_error"] = _body_pose_error(comp.human, scene, list(scene.split["train"]), test)
     if fitted is not None:
         f_full, f_h, f_o, f_hi, f_oi = fitted
         metrics["test_time_pose_fit"] = {
@@ -199,6 +201,45 @@ def _novel_views(comp, scene, notes: list[str], out: Path | None, show_progress:
     res = _mean_metrics(rows, notes, "novel_view")
     res["n_views"] = len(rows)
     return res
+
+
+def _body_pose_error(human, scene, train: list[int], test: list[int]) -> dict:
+    """How far the posed body's joints are from the truth: mean over joints and frames of
+    the image distance (pixels, true cameras) and the 3D distance (mm).
+
+    `input` poses the body as the scene's body.npz gives it; `fitted` as the trained run
+    poses each frame (training frames: their fitted corrections; held-out frames: the
+    interpolation of their fitted neighbours, `HumanBranch.held_out_pose`). The held-out
+    human metrics can only be as good as these poses (benchmarks/human_pose_bound.py).
+    """
+    gt = scene.gt
+    body = human.body
+    w2c = torch.as_tensor(gt.cameras.world_to_camera, dtype=torch.float32)
+    K = torch.as_tensor(gt.cameras.K, dtype=torch.float32)
+
+    def joints(pose, transl, shape):
+        return body.bone_transforms(torch.as_tensor(pose).float(), torch.as_tensor(transl).float(), shape)[1]
+
+    def pixels(J):
+        Xc = torch.einsum("tij,tnj->tni", w2c[:, :3, :3], J) + w2c[:, None, :3, 3]
+        x = torch.einsum("tij,tnj->tni", K, Xc)
+        return x[..., :2] / x[..., 2:3].clamp_min(1e-6)
+
+    with torch.no_grad():
+        fitted = [human.frame_pose(t) for t in range(len(gt.body))]
+        poses = {
+            "input": joints(scene.body.pose, scene.body.transl, torch.as_tensor(scene.body.shape).float()),
+            "fitted": joints(torch.cat([f[0] for f in fitted]), torch.cat([f[1] for f in fitted]), human.shape),
+        }
+        truth = joints(gt.body.pose, gt.body.transl, torch.as_tensor(gt.body.shape).float())
+    out: dict = {"joint_px": {}, "joint_mm": {}}
+    for name, J in poses.items():
+        px = (pixels(J) - pixels(truth)).norm(dim=-1).mean(-1)
+        mm = (J - truth).norm(dim=-1).mean(-1) * 1000.0
+        for split, frames in (("train", train), ("test", test)):
+            out["joint_px"][f"{name}_{split}"] = float(px[frames].mean())
+            out["joint_mm"][f"{name}_{split}"] = float(mm[frames].mean())
+    return out
 
 
 def _object_pose_error(obj, gt_track, test: list[int], train: list[int]) -> dict:

@@ -466,6 +466,8 @@ class Trainer:
         scene's position learning rate (x0.01)."""
         if "human" in self.optimizers:
             boost = self.cfg.pose_warmup_lr_scale if self._aligning(name, frac) else 1.0
+            if name in ("V", "VI"):
+                boost *= self.cfg.compose_pose_lr_scale
             for g in self.optimizers["human"].param_groups:
                 if g["name"] == "pose":
                     g["lr"] = self.cfg.lr.human_pose * boost
