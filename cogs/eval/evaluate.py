@@ -23,6 +23,7 @@ import torch
 from cogs.data.io import read_json, write_image, write_json
 from cogs.eval.metrics import crop_to_mask, image_metrics, iou
 from cogs.log import track
+from cogs.geometry.camera import project_points
 from cogs.geometry.rotations import quat_to_rotmat, rotmat_geodesic_angle
 
 log = logging.getLogger(__name__)
@@ -221,9 +222,7 @@ def _body_pose_error(human, scene, train: list[int], test: list[int]) -> dict:
         return body.bone_transforms(torch.as_tensor(pose).float(), torch.as_tensor(transl).float(), shape)[1]
 
     def pixels(J):
-        Xc = torch.einsum("tij,tnj->tni", w2c[:, :3, :3], J) + w2c[:, None, :3, 3]
-        x = torch.einsum("tij,tnj->tni", K, Xc)
-        return x[..., :2] / x[..., 2:3].clamp_min(1e-6)
+        return torch.stack([project_points(J[t], w2c[t], K[t])[0] for t in range(len(J))])
 
     with torch.no_grad():
         fitted = [human.frame_pose(t) for t in range(len(gt.body))]
