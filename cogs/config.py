@@ -173,10 +173,11 @@ class TrainConfig:
     pose_realign_fraction: float = 0.0
     """Stage II opens by re-aligning the poses (only they step, at the boosted rate) against
     the full loss, now that the appearance is sharp enough to add photometric evidence."""
-    compose_pose_lr_scale: float = 1.0
-    """Scale of the pose corrections' learning rates in stages V-VI, where the full-image
-    loss lets the body pose trade against the scene and the object (0 holds the poses the
-    human stages fitted)."""
+    compose_pose_lr_scale: float = 0.0
+    """Scale of the pose corrections' learning rates in stages V-VI. The default 0 holds the
+    poses the human stages fitted: the full-image loss lets the body pose trade against the
+    scene and the object, and on the demo scene it moved the held-out joints from 1.96 to
+    2.48 px (human IoU -0.012). 1 refines them at the human stages' rate."""
     visibility_every: int = 500
     """Recompute the human visibility scores every this many steps (and at stage starts)."""
     plane_assign_every: int = 500
