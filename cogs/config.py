@@ -178,6 +178,11 @@ class TrainConfig:
     poses the human stages fitted: the full-image loss lets the body pose trade against the
     scene and the object, and on the demo scene it moved the held-out joints from 1.96 to
     2.48 px (human IoU -0.012). 1 refines them at the human stages' rate."""
+    human_stage_means_lr_scale: float = 1.0
+    """Scale of the human's canonical-position learning rate in stages I-II. Free canonical
+    positions take up part of the input poses' error instead of the pose corrections
+    (the appearance then fits the wrong pose); 0 keeps the seed's positions there, and
+    V-VI train them at the full rate."""
     visibility_every: int = 500
     """Recompute the human visibility scores every this many steps (and at stage starts)."""
     plane_assign_every: int = 500

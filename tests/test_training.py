@@ -96,6 +96,19 @@ def test_compositional_stages_can_hold_the_fitted_body_poses(small_synthetic, tm
     assert not torch.equal(after_vi["color_residual"], after_ii["color_residual"])
 
 
+def test_human_stages_can_hold_the_canonical_positions(small_synthetic, tmp_path):
+    """human_stage_means_lr_scale=0: stages I-II move the poses but not the canonical
+    positions (they stay the seed's); V-VI train them."""
+    run = tmp_path / "means_held"
+    _train(small_synthetic, run, ["human_stage_means_lr_scale=0.0"])
+    after_ii = ckpt.load(run / "checkpoints" / "stage_II.pt")["branches"]["human"]
+    after_vi = ckpt.load(run / "checkpoints" / "stage_VI.pt")["branches"]["human"]
+    torch.testing.assert_close(after_ii["means"], after_ii["seed_means"], rtol=0, atol=0)
+    assert after_ii["pose_delta"].abs().max() > 0
+    n = len(after_ii["means"])  # V-VI clone human Gaussians after the seed's rows
+    assert not torch.equal(after_vi["means"][:n], after_ii["means"])
+
+
 def test_killed_run_resumes_to_the_same_parameters(small_synthetic, tmp_path):
     """SIGKILL a training process in the middle of stage III; `cogs train --resume` ends
     with exactly the parameters of an uninterrupted run."""

@@ -462,8 +462,9 @@ class Trainer:
         return (name == "I" and frac < self.cfg.pose_warmup_fraction) or (name == "II" and frac < self.cfg.pose_realign_fraction)
 
     def _schedule_lr(self, name: str, frac: float) -> None:
-        """Pose corrections fast during the pose alignment; 3DGS's exponential decay of the
-        scene's position learning rate (x0.01)."""
+        """Pose corrections fast during the pose alignment and scaled in V-VI; the human's
+        canonical positions scaled in I-II; 3DGS's exponential decay of the scene's position
+        learning rate (x0.01)."""
         if "human" in self.optimizers:
             boost = self.cfg.pose_warmup_lr_scale if self._aligning(name, frac) else 1.0
             if name in ("V", "VI"):
@@ -473,6 +474,9 @@ class Trainer:
                     g["lr"] = self.cfg.lr.human_pose * boost
                 elif g["name"] == "transl":
                     g["lr"] = self.cfg.lr.human_transl * boost
+                elif g["name"] == "means":
+                    scale = self.cfg.human_stage_means_lr_scale if name in ("I", "II") else 1.0
+                    g["lr"] = self.cfg.lr.human_means * scale
         if "scene" not in self.optimizers:
             return
         if name == "V":
