@@ -22,9 +22,9 @@ import torch
 
 from cogs.data.io import read_json, write_image, write_json
 from cogs.eval.metrics import crop_to_mask, image_metrics, iou
-from cogs.log import track
 from cogs.geometry.camera import project_points
 from cogs.geometry.rotations import quat_to_rotmat, rotmat_geodesic_angle
+from cogs.log import track
 
 log = logging.getLogger(__name__)
 
@@ -231,9 +231,10 @@ def _body_pose_error(human, scene, train: list[int], test: list[int]) -> dict:
             "fitted": joints(torch.cat([f[0] for f in fitted]), torch.cat([f[1] for f in fitted]), human.shape),
         }
         truth = joints(gt.body.pose, gt.body.transl, torch.as_tensor(gt.body.shape).float())
+    truth_px = pixels(truth)
     out: dict = {"joint_px": {}, "joint_mm": {}}
     for name, J in poses.items():
-        px = (pixels(J) - pixels(truth)).norm(dim=-1).mean(-1)
+        px = (pixels(J) - truth_px).norm(dim=-1).mean(-1)
         mm = (J - truth).norm(dim=-1).mean(-1) * 1000.0
         for split, frames in (("train", train), ("test", test)):
             out["joint_px"][f"{name}_{split}"] = float(px[frames].mean())
