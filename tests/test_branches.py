@@ -394,3 +394,30 @@ def test_without_per_frame_pose_held_out_frames_keep_their_corrected_input(body_
     h.cfg = dataclasses.replace(h.cfg, per_frame_pose=False)
     for t in test:
         torch.testing.assert_close(h.frame_pose(t)[0], h.base_pose[t : t + 1])
+
+
+def test_visibility_saturates_at_the_full_frame_count(body_model):
+    """`visibility_full_frames` = N: a Gaussian seen in N frames counts as observed (v = 1)
+    however many frames miss it; one never seen stays at v = 0. With 0 it is the fraction."""
+    T, W, H = 3, 64, 96
+    K = torch.tensor(intrinsics_from_fov(W, H, 60.0), dtype=torch.float32).expand(T, 3, 3)
+    w2c = torch.tensor(look_at([0.0, -3.0, 0.0], [0.0, 0.0, 0.0]), dtype=torch.float32).expand(T, 4, 4)
+    human_masks = np.zeros((T, H, W), bool)
+    human_masks[0] = True  # only the first frame shows the person
+    object_masks = np.zeros((T, H, W), bool)
+    scores = {}
+    for n_full in (0, 1):
+        cfg = HumanConfig(n_gaussians=4000, triplane_resolution=16, triplane_channels=4, seed_opacity=0.95,
+                          visibility_full_frames=n_full)
+        seed = sample_human_seed(body_model, None, cfg, seed=1)
+        h = HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), cfg)
+        scores[n_full] = compute_visibility(h, [0, 1, 2], w2c, K, W, H, human_masks, object_masks, backend="cpu")
+    front = torch.nonzero(seed.normals[:, 1] < -0.9).flatten()
+    m = seed.means
+    torso = (m[:, 0].abs() < 0.12) & (m[:, 2] > -0.2) & (m[:, 2] < 0.3)
+    back = torch.nonzero(torso & (seed.normals[:, 1] > 0.9)).flatten()  # behind the torso
+    seen = front[scores[0][front] > 0]
+    assert len(seen) > 0.8 * len(front) and len(back)
+    torch.testing.assert_close(scores[0][seen], torch.full((len(seen),), 1 / 3))
+    assert torch.all(scores[1][seen] == 1)
+    assert scores[0][back].max() == 0 and scores[1][back].max() == 0

@@ -60,6 +60,9 @@ def test_six_stages_train_evaluate_and_export(small_synthetic, tmp_path):
         assert key in m, key
     assert 5 < m["full"]["psnr"] < 60 and 0 < m["full"]["ssim"] <= 1
     assert 0 <= m["decomposition"]["human_iou"] <= 1
+    nv = m["novel_view"]  # the rings round the person: silhouettes and the human's crop
+    assert nv["n_views"] > 0 and 0 < nv["human_iou"] <= 1 and 0 <= nv["object_iou"] <= 1
+    assert 5 < nv["human_crop"]["psnr"] < 60
     assert m["object_pose_error"]["rotation_deg"] >= 0
     bpe = m["body_pose_error"]["joint_px"]
     assert set(bpe) == {"input_train", "input_test", "fitted_train", "fitted_test"}

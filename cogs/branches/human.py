@@ -96,6 +96,11 @@ class HumanConfig:
     visibility_epsilon: float = 0.01
     """chi_it needs the Gaussian's summed compositing weight inside the human mask (in
     pixel units) above this."""
+    visibility_full_frames: int = 0
+    """0: v_i is the fraction of the training frames that see Gaussian i (CoGS), so the
+    anchor weight 1 - v_i depends on the clip's length, and a part seen in 40 of 84 frames
+    is still held at half weight. N > 0: v_i = min(1, frames that see it / N), so a
+    Gaussian seen in N frames counts as observed and only parts few frames see are held."""
 
 
 @dataclass
@@ -421,7 +426,8 @@ def compute_visibility(
     object_masks: np.ndarray,  # [T, H, W] bool
     backend: str = "auto",
 ) -> Tensor:
-    """v_i = (1/|T|) sum_t chi_it over the given training frames (CoGS Sec. visibility).
+    """v_i = (1/|T|) sum_t chi_it over the given training frames (CoGS Sec. visibility),
+    or min(1, sum_t chi_it / N) with `visibility_full_frames` = N > 0.
 
     The human is rendered alone; its compositing weights are gathered inside
     (human mask and not object mask) by one backward pass per frame.
@@ -441,4 +447,5 @@ def compute_visibility(
         )
         depth = (posed.means @ viewmats[t][:3, :3].T + viewmats[t][:3, 3])[:, 2]
         counts += visibility_indicator(contrib, means2d, depth > 0, mask, human.cfg.visibility_epsilon).float()
-    return counts / max(len(frames), 1)
+    n_full = human.cfg.visibility_full_frames
+    return (counts / n_full).clamp(max=1.0) if n_full > 0 else counts / max(len(frames), 1)

@@ -62,6 +62,7 @@ def table_rows(rows: dict[str, dict]) -> list[dict]:
             "delta_lpips": (lp - full_lpips) if lp is not None and full_lpips is not None else None,
             "human_crop_psnr": _get(m, "human_crop", "psnr"),
             "novel_view_psnr": _get(m, "novel_view", "psnr"),
+            "novel_human_iou": _get(m, "novel_view", "human_iou"),
             "human_iou": _get(m, "decomposition", "human_iou"),
             "object_iou": _get(m, "decomposition", "object_iou"),
             "object_rot_deg": _get(m, "object_pose_error", "rotation_deg"),
@@ -73,7 +74,7 @@ def table_rows(rows: dict[str, dict]) -> list[dict]:
 
 def write_table(rows: dict[str, dict], path: Path, preset: str) -> None:
     cols = ["variant", "psnr", "ssim", "lpips", "delta_lpips", "human_crop_psnr", "novel_view_psnr",
-            "human_iou", "object_iou", "object_rot_deg", "object_trans_cm", "train_s"]
+            "novel_human_iou", "human_iou", "object_iou", "object_rot_deg", "object_trans_cm", "train_s"]
     fmt = lambda v: "—" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))  # noqa: E731
     lines = [f"Ablations, preset `{preset}` (held-out frames; LPIPS — when its weights are unavailable)", "",
              "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]

@@ -190,16 +190,28 @@ def _novel_views(comp, scene, notes: list[str], out: Path | None, show_progress:
     if nv is None or len(nv.frames) == 0:
         notes.append("novel_view: the scene has no novel-view ground truth")
         return None
-    rows = []
+    rows, hcrop, h_iou, o_iou = [], [], [], []
     for i, t in track(enumerate(nv.frames), "eval: novel views", show_progress):
         r = render_frame(comp, scene, int(t), viewmat=nv.cameras.world_to_camera[i], K=nv.cameras.K[i])
         pred = r.rgb.clamp(0, 1).numpy()
         img = nv.images[i].astype(np.float32) / 255.0
         rows.append(image_metrics(pred, img, notes=notes))
+        # The rings see the person from all round, sides no training view may have seen:
+        # the human's crop and silhouette there measure what the seed and anchoring leave.
+        c = crop_to_mask(pred, img, nv.human_masks[i])
+        if c is not None:
+            hcrop.append(image_metrics(*c, notes=notes))
+        if comp.human is not None and nv.human_masks[i].any():
+            h_iou.append(iou(r.branch_alpha["human"][..., 0].numpy() > 0.5, nv.human_masks[i]))
+        if comp.object is not None and nv.object_masks[i].any():
+            o_iou.append(iou(r.branch_alpha["object"][..., 0].numpy() > 0.5, nv.object_masks[i]))
         if out is not None:
             write_image(out / "novel" / f"v{i:03d}_render.png", pred)
             write_image(out / "novel" / f"v{i:03d}_gt.png", img)
     res = _mean_metrics(rows, notes, "novel_view")
+    res["human_crop"] = _mean_metrics(hcrop, notes, "novel_view.human_crop") if hcrop else None
+    res["human_iou"] = float(np.mean(h_iou)) if h_iou else None
+    res["object_iou"] = float(np.mean(o_iou)) if o_iou else None
     res["n_views"] = len(rows)
     return res
 

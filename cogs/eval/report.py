@@ -160,12 +160,23 @@ def _fmt(v) -> str:
     return str(v)
 
 
+def _flat(d: dict, prefix: str = "") -> dict:
+    """{"a": 1, "b": {"c": 2}} -> {"a": 1, "b.c": 2}."""
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
 def metrics_table(m: dict) -> list[tuple[str, str]]:
     rows = []
     for group in ("full", "human_crop", "object_crop", "novel_view"):
         g = m.get(group)
         if isinstance(g, dict):
-            rows.append((group, ", ".join(f"{k} {_fmt(v)}" for k, v in g.items())))
+            rows.append((group, ", ".join(f"{k} {_fmt(v)}" for k, v in _flat(g).items())))
     for group in ("decomposition", "object_pose_error"):
         g = m.get(group)
         if isinstance(g, dict):
