@@ -174,7 +174,8 @@ def test_pose_corrections_interpolate_between_keyframes(small_human):
 def test_visibility_scores_and_anchor_gradients(body_model):
     """A Gaussian seen in every frame gets v = 1 and no anchor pull; one always hidden
     (behind the body, or under the object mask) gets v = 0 and is pulled back to the seed."""
-    cfg = HumanConfig(n_gaussians=4000, triplane_resolution=16, triplane_channels=4, seed_opacity=0.95)
+    cfg = HumanConfig(n_gaussians=4000, triplane_resolution=16, triplane_channels=4, seed_opacity=0.95,
+                      visibility_full_frames=0)
     seed = sample_human_seed(body_model, None, cfg, seed=1)
     T, W, H = 3, 64, 96
     h = HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), cfg)
