@@ -213,6 +213,9 @@ def _novel_views(comp, scene, notes: list[str], out: Path | None, show_progress:
     res["human_iou"] = float(np.mean(h_iou)) if h_iou else None
     res["object_iou"] = float(np.mean(o_iou)) if o_iou else None
     res["n_views"] = len(rows)
+    for key, vals in (("human_crop", hcrop), ("human_iou", h_iou), ("object_iou", o_iou)):
+        if not vals:
+            notes.append(f"novel_view.{key}: no novel view shows that branch (or the run has none)")
     return res
 
 
