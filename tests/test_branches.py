@@ -171,6 +171,13 @@ def test_pose_corrections_interpolate_between_keyframes(small_human):
             h.pose_delta.zero_()
 
 
+def _back_of_torso(seed) -> torch.Tensor:
+    """Seed indices on the torso's back (Anny faces -y), hidden from a camera in front."""
+    m = seed.means
+    torso = (m[:, 0].abs() < 0.12) & (m[:, 2] > -0.2) & (m[:, 2] < 0.3)
+    return torch.nonzero(torso & (seed.normals[:, 1] > 0.9)).flatten()
+
+
 def test_visibility_scores_and_anchor_gradients(body_model):
     """A Gaussian seen in every frame gets v = 1 and no anchor pull; one always hidden
     (behind the body, or under the object mask) gets v = 0 and is pulled back to the seed."""
@@ -193,8 +200,7 @@ def test_visibility_scores_and_anchor_gradients(body_model):
     uv_row = (K[1, 1] * (-means[:, 2]) / depth + K[1, 2])
     low = uv_row > H / 3 + 4  # well below the object mask
     front = torch.nonzero(low & (seed.normals[:, 1] < -0.9)).flatten()
-    torso = (means[:, 0].abs() < 0.12) & (means[:, 2] > -0.2) & (means[:, 2] < 0.3)
-    back = torch.nonzero(torso & (seed.normals[:, 1] > 0.9)).flatten()  # behind the torso
+    back = _back_of_torso(seed)
     head = torch.nonzero((uv_row < H / 3 - 4) & (seed.normals[:, 1] < -0.9)).flatten()
     assert len(front) and len(back) and len(head)
     assert (v[front] == 1).float().mean() > 0.9
@@ -406,17 +412,15 @@ def test_visibility_saturates_at_the_full_frame_count(body_model):
     human_masks = np.zeros((T, H, W), bool)
     human_masks[0] = True  # only the first frame shows the person
     object_masks = np.zeros((T, H, W), bool)
+    cfg = HumanConfig(n_gaussians=4000, triplane_resolution=16, triplane_channels=4, seed_opacity=0.95)
+    seed = sample_human_seed(body_model, None, cfg, seed=1)
+    h = HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), cfg)
     scores = {}
     for n_full in (0, 1):
-        cfg = HumanConfig(n_gaussians=4000, triplane_resolution=16, triplane_channels=4, seed_opacity=0.95,
-                          visibility_full_frames=n_full)
-        seed = sample_human_seed(body_model, None, cfg, seed=1)
-        h = HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(T, 104, 3), torch.zeros(T, 3), cfg)
+        h.cfg = dataclasses.replace(cfg, visibility_full_frames=n_full)
         scores[n_full] = compute_visibility(h, [0, 1, 2], w2c, K, W, H, human_masks, object_masks, backend="cpu")
     front = torch.nonzero(seed.normals[:, 1] < -0.9).flatten()
-    m = seed.means
-    torso = (m[:, 0].abs() < 0.12) & (m[:, 2] > -0.2) & (m[:, 2] < 0.3)
-    back = torch.nonzero(torso & (seed.normals[:, 1] > 0.9)).flatten()  # behind the torso
+    back = _back_of_torso(seed)
     seen = front[scores[0][front] > 0]
     assert len(seen) > 0.8 * len(front) and len(back)
     torch.testing.assert_close(scores[0][seen], torch.full((len(seen),), 1 / 3))

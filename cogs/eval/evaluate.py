@@ -46,6 +46,11 @@ def _error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     return matplotlib.colormaps["inferno"](np.clip(err / 0.25, 0, 1))[..., :3]
 
 
+def _branch_iou(r, branch: str, mask: np.ndarray) -> float:
+    """IoU of a branch's rendered silhouette (its alpha share > 0.5) with a true mask."""
+    return iou(r.branch_alpha[branch][..., 0].numpy() > 0.5, mask)
+
+
 def render_frame(comp, scene, t: int, branches=None, viewmat=None, K=None):
     """Composite render of frame t (training camera unless viewmat/K given), no grad."""
     vm = torch.as_tensor(scene.cameras.world_to_camera[t] if viewmat is None else viewmat, dtype=torch.float32)
@@ -152,9 +157,9 @@ def _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes
             if c is not None:
                 ocrop.append(image_metrics(*c, notes=notes))
         if gt is not None:
-            h_iou.append(iou(r.branch_alpha["human"][..., 0].numpy() > 0.5, gt.human_masks[t]))
+            h_iou.append(_branch_iou(r, "human", gt.human_masks[t]))
             if scene.has_object and (gt.object_masks[t].any() or (r.branch_alpha["object"] > 0.5).any()):
-                o_iou.append(iou(r.branch_alpha["object"][..., 0].numpy() > 0.5, gt.object_masks[t]))
+                o_iou.append(_branch_iou(r, "object", gt.object_masks[t]))
         if rdir is not None:
             fid = scene.frame_ids[t]
             write_image(rdir / f"{fid}_composite.png", pred)
@@ -202,9 +207,9 @@ def _novel_views(comp, scene, notes: list[str], out: Path | None, show_progress:
         if c is not None:
             hcrop.append(image_metrics(*c, notes=notes))
         if comp.human is not None and nv.human_masks[i].any():
-            h_iou.append(iou(r.branch_alpha["human"][..., 0].numpy() > 0.5, nv.human_masks[i]))
+            h_iou.append(_branch_iou(r, "human", nv.human_masks[i]))
         if comp.object is not None and nv.object_masks[i].any():
-            o_iou.append(iou(r.branch_alpha["object"][..., 0].numpy() > 0.5, nv.object_masks[i]))
+            o_iou.append(_branch_iou(r, "object", nv.object_masks[i]))
         if out is not None:
             write_image(out / "novel" / f"v{i:03d}_render.png", pred)
             write_image(out / "novel" / f"v{i:03d}_gt.png", img)
@@ -213,8 +218,8 @@ def _novel_views(comp, scene, notes: list[str], out: Path | None, show_progress:
     res["human_iou"] = float(np.mean(h_iou)) if h_iou else None
     res["object_iou"] = float(np.mean(o_iou)) if o_iou else None
     res["n_views"] = len(rows)
-    for key, vals in (("human_crop", hcrop), ("human_iou", h_iou), ("object_iou", o_iou)):
-        if not vals:
+    for key in ("human_crop", "human_iou", "object_iou"):
+        if res[key] is None:
             notes.append(f"novel_view.{key}: no novel view shows that branch (or the run has none)")
     return res
 
