@@ -357,18 +357,21 @@ def test_held_out_interpolation_weights_reproduce_cubic_motion():
     assert _lagrange_neighbours(7, trained, 1, 3)[0].tolist() == [5, 8]  # nearest trained on each side
 
 
-def _jittered_human(body_model, T: int = 40, jitter: float = 0.03, seed: int = 0):
-    """A human branch whose input poses are a smooth motion plus per-frame jitter on the
-    refined bones; the training frames' per-frame residuals hold exactly minus that jitter
-    (what an ideal fit finds). Every 6th frame is held out. Returns (branch, true pose)."""
-    cfg = HumanConfig(n_gaussians=500, triplane_resolution=8, triplane_channels=4, per_frame_pose=True)
+def _jittered_human(body_model, T: int = 40, jitter: float = 0.03, seed: int = 0, speed: float = 0.15,
+                    input_weight: float = 0.0):
+    """A human branch whose input poses are a sinusoidal motion (`speed` radians of phase
+    per frame) plus per-frame jitter on the refined bones; the training frames' per-frame
+    residuals hold exactly minus that jitter (what an ideal fit finds). Every 6th frame is
+    held out. Returns (branch, true pose, held-out frames)."""
+    cfg = HumanConfig(n_gaussians=500, triplane_resolution=8, triplane_channels=4, per_frame_pose=True,
+                      held_out_input_weight=input_weight)
     sd = sample_human_seed(body_model, None, cfg, seed=0)
     g = torch.Generator().manual_seed(seed)
     major = torch.tensor([body_model.bone_index(b) for b in body_model.major_bones])
     t = torch.arange(T, dtype=torch.float32)[:, None, None]
     phase = torch.rand(1, len(major), 3, generator=g) * 6.0
     true = torch.zeros(T, 104, 3)
-    true[:, major] = 0.3 * torch.sin(0.15 * t + phase)
+    true[:, major] = 0.3 * torch.sin(speed * t + phase)
     noisy = true.clone()
     noisy[:, major] += jitter * torch.randn(T, len(major), 3, generator=g)
     test = list(range(0, T, 6))
@@ -394,6 +397,30 @@ def test_held_out_pose_leans_on_fitted_neighbours_when_the_input_jitters(body_mo
     # the first frame (neighbours on one side only) keeps its input
     pose0, _ = h.frame_pose(0)
     torch.testing.assert_close(pose0, h.base_pose[:1])
+
+
+def _held_out_error(h, true, test) -> float:
+    """Mean geodesic error (radians) of the held-out poses on the refined bones."""
+    from cogs.geometry.rotations import axis_angle_to_quat, quat_geodesic_angle
+
+    major = h.refined_bones
+    errs = [quat_geodesic_angle(axis_angle_to_quat(h.frame_pose(t)[0][0, major]), axis_angle_to_quat(true[t, major])).mean()
+            for t in test[1:]]  # frame 0 has no neighbour before it
+    return float(torch.stack(errs).mean())
+
+
+def test_held_out_pose_keeps_a_share_of_its_own_inputs_motion(body_model):
+    """Motion too fast for the neighbours' interpolation: a share of the frame's own input
+    detail recovers part of what the interpolation misses, at the cost of a share of its
+    jitter; with a jitter-free input, all of it gives the frame's own input exactly."""
+    err = {w: _held_out_error(*_jittered_human(body_model, jitter=0.01, speed=0.9, input_weight=w)) for w in (0.0, 0.3)}
+    assert err[0.3] < 0.85 * err[0.0]
+    h, true, test = _jittered_human(body_model, jitter=0.0, speed=0.9, input_weight=1.0)
+    for t in test[1:]:
+        torch.testing.assert_close(h.frame_pose(t)[0], h.base_pose[t : t + 1], atol=1e-5, rtol=0)
+    # and where the input only jitters, the neighbours alone are the better guess
+    slow = {w: _held_out_error(*_jittered_human(body_model, input_weight=w)) for w in (0.0, 0.3)}
+    assert slow[0.0] < slow[0.3]
 
 
 def test_without_per_frame_pose_held_out_frames_keep_their_corrected_input(body_model):
