@@ -16,9 +16,10 @@ the frames that differ from the truth at all, `frames_rendered_exactly` counts t
   smooth in time (such as the trainer's keyframed one) can give, since the jitter of a
   held-out frame is independent of every other frame;
 * ``true_neighbours``: the true poses of the frame's training neighbours, interpolated to
-  it the way `HumanBranch.held_out_pose` interpolates fitted ones (cubic, two per side;
-  the clip's first frame, which has none before it, as in ``jitter_only``): what that
-  rule reaches once the training frames' poses are recovered exactly;
+  it the way `HumanBranch.held_out_pose` interpolates fitted ones (cubic, two per side,
+  without the share of the frame's own input, `held_out_input_weight=0`; the clip's first
+  frame, which has none before it, as in ``jitter_only``): what that rule reaches once the
+  training frames' poses are recovered exactly;
 * ``truth``: the true pose (a check: IoU 1, PSNR infinite).
 
 The noise is drawn with the scene's own seed and generator, so these are the poses the

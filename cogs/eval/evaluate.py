@@ -230,8 +230,9 @@ def _body_pose_error(human, scene, train: list[int], test: list[int]) -> dict:
 
     `input` poses the body as the scene's body.npz gives it; `fitted` as the trained run
     poses each frame (training frames: their fitted corrections; held-out frames: the
-    interpolation of their fitted neighbours, `HumanBranch.held_out_pose`). The held-out
-    human metrics can only be as good as these poses (benchmarks/human_pose_bound.py).
+    interpolation of their fitted neighbours with a share of their own input's motion,
+    `HumanBranch.held_out_pose`). The held-out human metrics can only be as good as these
+    poses (benchmarks/human_pose_bound.py).
     """
     gt = scene.gt
     body = human.body
