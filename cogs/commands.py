@@ -223,6 +223,8 @@ class Ablate:
     preset: Literal["quick", "paper"] = "quick"
     only: list[str] = field(default_factory=list)
     """Run only these variants (names as in the table; default all)."""
+    seeds: list[int] = field(default_factory=lambda: [0])
+    """Train every variant once per seed (e.g. 0 1): the table gives mean ± half-range."""
 
     def run(self) -> int:
         from cogs.data.validate import check_scene
@@ -231,11 +233,13 @@ class Ablate:
         unknown = set(self.only) - set(ABLATIONS)
         if unknown:  # before any work
             raise UserError(f"unknown ablation(s) {sorted(unknown)}; known: {list(ABLATIONS)}")
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
+            raise UserError(f"--seeds must be distinct non-negative integers, got {self.seeds}")
         variants = {k: v for k, v in ABLATIONS.items() if not self.only or k in self.only}
         scene = self.scene
         if scene is None:
             scene = self.out / "scene"
             if not ((scene / "scene.json").exists() and not check_scene(scene)):
                 _synthesize(scene, preview=False)
-        run_ablation(scene, self.out, self.preset, variants)
+        run_ablation(scene, self.out, self.preset, variants, seeds=tuple(self.seeds))
         return 0

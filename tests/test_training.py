@@ -183,3 +183,49 @@ def test_unknown_ablation_is_refused_before_any_work(tmp_path, capsys):
     assert main(["ablate", "--out", str(out), "--only", "no such component"]) == 2
     assert "unknown ablation(s) ['no such component']" in capsys.readouterr().err
     assert not out.exists()  # no scene synthesized, no run started
+    assert main(["ablate", "--out", str(out), "--seeds", "0", "0"]) == 2
+    assert "--seeds must be distinct" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_ablation_over_two_seeds_keeps_each_run_and_averages_them(small_synthetic, tmp_path):
+    """`--seeds 0 1`: the first seed's run keeps the one-seed layout, the second lands
+    beside it with seed=1 in its config; the row is the mean of the two evaluations."""
+    from cogs.eval.ablation import run_ablation
+
+    out = tmp_path / "abl"
+    rows = run_ablation(small_synthetic, out, "quick", {"full": TINY}, seeds=(0, 1))
+    for seed, run in ((0, out / "full"), (1, out / "full.seed1")):
+        assert (run / "eval" / "metrics.json").exists()
+        assert f"\nseed: {seed}\n" in (run / "config.yaml").read_text()
+    per = rows["full"]["seeds"]
+    assert set(per) == {"0", "1"}
+    p0, p1 = per["0"]["full"]["psnr"], per["1"]["full"]["psnr"]
+    assert p0 != p1  # the seed reached the training
+    assert rows["full"]["metrics"]["full"]["psnr"] == pytest.approx((p0 + p1) / 2)
+    assert json.loads((out / "ablation.json").read_text())["full"]["seeds"].keys() == {"0", "1"}
+    assert f"{(p0 + p1) / 2:.3f} ± {abs(p0 - p1) / 2:.3f}" in (out / "ablation.md").read_text()
+    # A second call reuses both finished runs: nothing is trained again.
+    stamp = (out / "full.seed1" / "train_summary.json").stat().st_mtime_ns
+    run_ablation(small_synthetic, out, "quick", {"full": TINY}, seeds=(0, 1))
+    assert (out / "full.seed1" / "train_summary.json").stat().st_mtime_ns == stamp
+
+
+def test_ablation_table_stars_only_what_lies_beyond_the_seed_spread():
+    from cogs.eval.ablation import table_rows
+
+    def m(psnr, iou):
+        return {"full": {"psnr": psnr, "ssim": 0.9, "lpips": None}, "decomposition": {"human_iou": iou}}
+
+    rows = {
+        "full": {"overrides": [], "seeds": {"0": m(31.0, 0.90), "1": m(30.0, 0.89)}},
+        "worse": {"overrides": ["x"], "seeds": {"0": m(29.5, 0.895), "1": m(29.0, 0.88)}},
+    }
+    full, worse = table_rows(rows)
+    assert full["psnr"] == pytest.approx(30.5) and full["spread"]["psnr"] == pytest.approx(0.5)
+    assert worse["psnr"] == pytest.approx(29.25) and worse["n_seeds"] == 2
+    assert worse["beyond_spread"] == ["psnr"]  # [29, 29.5] misses [30, 31]; [0.88, 0.895] meets [0.89, 0.9]
+    assert full["beyond_spread"] == [] and worse["lpips"] is None and worse["delta_lpips"] is None
+    # A row written before seeds were counted (metrics only) is one seed: nothing starred.
+    old = table_rows({"full": {"metrics": m(31.0, 0.9)}, "worse": {"metrics": m(20.0, 0.5)}})
+    assert [r["n_seeds"] for r in old] == [1, 1] and old[1]["beyond_spread"] == []

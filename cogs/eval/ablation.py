@@ -1,14 +1,22 @@
-"""The CoGS ablation table: one run per removed component, evaluated alike.
+"""The CoGS ablation table: one run per removed component and seed, evaluated alike.
 
 Each variant is a set of config overrides on the chosen preset (see
-`cogs.commands.ABLATIONS`). Runs live in OUT/<variant>; an interrupted ablation resumes,
-finished variants are reused. Writes OUT/ablation.json and OUT/ablation.md.
+`cogs.commands.ABLATIONS`). A variant's run with the first seed lives in OUT/<variant>,
+with any other seed k in OUT/<variant>.seed<k> (seed 0 adds no override, so a one-seed
+ablation keeps the old layout). An interrupted ablation resumes; finished runs are reused.
+
+With several seeds each row holds the mean over them, and ablation.md writes every value
+as mean ± half the range over seeds. A value is starred where the variant's range over
+seeds and the full model's do not overlap: the change is larger than what the seed alone
+moves. Writes OUT/ablation.json (per row: overrides, mean metrics, per-seed metrics) and
+OUT/ablation.md.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import re
 from pathlib import Path
 
@@ -16,28 +24,59 @@ from cogs.data.io import read_json, write_json
 
 log = logging.getLogger(__name__)
 
+COLUMNS = ["psnr", "ssim", "lpips", "delta_lpips", "human_crop_psnr", "novel_view_psnr",
+           "novel_human_iou", "human_iou", "object_iou", "object_rot_deg", "object_trans_cm", "train_s"]
+
 
 def slug(name: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
 
 
-def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, list[str]]) -> dict:
+def run_dir(out: Path, name: str, seed: int, first_seed: int) -> Path:
+    """Where a variant's run with `seed` lives (the first seed: OUT/<variant>)."""
+    return Path(out) / (slug(name) if seed == first_seed else f"{slug(name)}.seed{seed}")
+
+
+def seed_overrides(overrides: list[str], seed: int) -> list[str]:
+    return list(overrides) if seed == 0 else [*overrides, f"seed={seed}"]
+
+
+def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, list[str]],
+                 seeds: tuple[int, ...] = (0,)) -> dict:
     from cogs.commands import Train
     from cogs.eval.evaluate import evaluate
 
+    assert seeds and len(set(seeds)) == len(seeds), seeds
     out = Path(out)
     rows: dict[str, dict] = {}
-    for i, (name, overrides) in enumerate(variants.items()):
-        run = out / slug(name)
-        log.info("ablation %d/%d: %s %s", i + 1, len(variants), name, overrides or "")
+    jobs = [(name, ov, s) for name, ov in variants.items() for s in seeds]
+    for i, (name, overrides, seed) in enumerate(jobs):
+        run = run_dir(out, name, seed, seeds[0])
+        sets = seed_overrides(overrides, seed)
+        log.info("ablation %d/%d: %s, seed %d %s", i + 1, len(jobs), name, seed, overrides or "")
         if not (run / "train_summary.json").exists():
             resume = (run / "checkpoints" / "last.pt").exists()
-            Train(Path(scene_dir), run, preset=preset, set=[] if resume else overrides, resume=resume).run()
+            Train(Path(scene_dir), run, preset=preset, set=[] if resume else sets, resume=resume).run()
         m = read_json(run / "eval" / "metrics.json") if (run / "eval" / "metrics.json").exists() else evaluate(run, save_renders=False)
-        rows[name] = {"overrides": overrides, "metrics": m}
+        row = rows.setdefault(name, {"overrides": overrides, "seeds": {}})
+        row["seeds"][str(seed)] = m
+        row["metrics"] = mean_metrics(list(row["seeds"].values()))
         write_json(out / "ablation.json", rows)
     write_table(rows, out / "ablation.md", preset)
     return rows
+
+
+def mean_metrics(runs: list[dict]):
+    """The mean over runs of every number in a metrics tree; None where any run has none,
+    other leaves (strings, lists) from the first run."""
+    first = runs[0]
+    if isinstance(first, dict):
+        return {k: mean_metrics([r.get(k) if isinstance(r, dict) else None for r in runs]) for k in first}
+    if isinstance(first, bool) or not isinstance(first, (int, float)):
+        return first
+    if any(not isinstance(r, (int, float)) for r in runs):
+        return None
+    return sum(runs) / len(runs)
 
 
 def _get(m: dict, *path):
@@ -48,38 +87,86 @@ def _get(m: dict, *path):
     return m
 
 
+def _values(m: dict) -> dict:
+    trans = _get(m, "object_pose_error", "translation")
+    return {
+        "psnr": _get(m, "full", "psnr"),
+        "ssim": _get(m, "full", "ssim"),
+        "lpips": _get(m, "full", "lpips"),
+        "human_crop_psnr": _get(m, "human_crop", "psnr"),
+        "novel_view_psnr": _get(m, "novel_view", "psnr"),
+        "novel_human_iou": _get(m, "novel_view", "human_iou"),
+        "human_iou": _get(m, "decomposition", "human_iou"),
+        "object_iou": _get(m, "decomposition", "object_iou"),
+        "object_rot_deg": _get(m, "object_pose_error", "rotation_deg"),
+        "object_trans_cm": trans * 100 if trans is not None else None,
+        "train_s": m.get("train_seconds"),
+    }
+
+
+def _seed_values(row: dict) -> list[dict]:
+    """Each seed's column values (a row without per-seed metrics: its one run)."""
+    runs = list(row["seeds"].values()) if row.get("seeds") else [row["metrics"]]
+    return [_values(m) for m in runs]
+
+
 def table_rows(rows: dict[str, dict]) -> list[dict]:
-    full_lpips = _get(rows.get("full", {}), "metrics", "full", "lpips")
+    """One dict per variant: the columns' means over seeds, `spread` (half the range over
+    seeds, per column), `beyond_spread` (columns whose range over seeds misses the full
+    model's) and `n_seeds`."""
+    full = _seed_values(rows["full"]) if "full" in rows else None
+    full_lpips = _mean([v["lpips"] for v in full]) if full else None
     out = []
     for name, r in rows.items():
-        m = r["metrics"]
-        lp = _get(m, "full", "lpips")
-        out.append({
-            "variant": name,
-            "psnr": _get(m, "full", "psnr"),
-            "ssim": _get(m, "full", "ssim"),
-            "lpips": lp,
-            "delta_lpips": (lp - full_lpips) if lp is not None and full_lpips is not None else None,
-            "human_crop_psnr": _get(m, "human_crop", "psnr"),
-            "novel_view_psnr": _get(m, "novel_view", "psnr"),
-            "novel_human_iou": _get(m, "novel_view", "human_iou"),
-            "human_iou": _get(m, "decomposition", "human_iou"),
-            "object_iou": _get(m, "decomposition", "object_iou"),
-            "object_rot_deg": _get(m, "object_pose_error", "rotation_deg"),
-            "object_trans_cm": (_get(m, "object_pose_error", "translation") or 0) * 100 if _get(m, "object_pose_error", "translation") is not None else None,
-            "train_s": m.get("train_seconds"),
-        })
+        per = _seed_values(r)
+        row = {"variant": name, "n_seeds": len(per), "spread": {}, "beyond_spread": []}
+        for c in COLUMNS:
+            if c == "delta_lpips":
+                continue
+            vals = [v[c] for v in per]
+            row[c] = _mean(vals)
+            row["spread"][c] = (max(vals) - min(vals)) / 2 if row[c] is not None else None
+            if full and name != "full" and row[c] is not None and len(per) > 1:
+                ref = [v[c] for v in full]
+                if None not in ref and len(ref) > 1 and (min(vals) > max(ref) or max(vals) < min(ref)):
+                    row["beyond_spread"].append(c)
+        row["delta_lpips"] = row["lpips"] - full_lpips if row["lpips"] is not None and full_lpips is not None else None
+        out.append(row)
     return out
 
 
+def _mean(vals: list) -> float | None:
+    if not vals or any(v is None for v in vals):
+        return None
+    m = sum(vals) / len(vals)
+    assert math.isfinite(m), vals
+    return m
+
+
+def _cell(r: dict, c: str) -> str:
+    v = r[c]
+    if v is None:
+        return "—"
+    if c == "train_s":
+        s = f"{v:.0f}"
+    else:
+        s = f"{v:.3f}"
+        if r["n_seeds"] > 1 and r["spread"].get(c) is not None:
+            s += f" ± {r['spread'][c]:.3f}"
+    return s + ("*" if c in r["beyond_spread"] else "")
+
+
 def write_table(rows: dict[str, dict], path: Path, preset: str) -> None:
-    cols = ["variant", "psnr", "ssim", "lpips", "delta_lpips", "human_crop_psnr", "novel_view_psnr",
-            "novel_human_iou", "human_iou", "object_iou", "object_rot_deg", "object_trans_cm", "train_s"]
-    fmt = lambda v: "—" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))  # noqa: E731
-    lines = [f"Ablations, preset `{preset}` (held-out frames; LPIPS — when its weights are unavailable)", "",
-             "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for r in table_rows(rows):
-        lines.append("| " + " | ".join(fmt(r[c]) for c in cols) + " |")
+    cols = ["variant", *COLUMNS]
+    trs = table_rows(rows)
+    n = max(r["n_seeds"] for r in trs)
+    head = f"Ablations, preset `{preset}` (held-out frames; LPIPS — when its weights are unavailable)"
+    if n > 1:
+        head += (f"; mean ± half the range over {n} seeds, * where the variant's range over seeds"
+                 " misses the full model's")
+    lines = [head, "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in trs:
+        lines.append("| " + " | ".join([r["variant"]] + [_cell(r, c) for c in COLUMNS]) + " |")
     Path(path).write_text("\n".join(lines) + "\n")
     log.info("wrote %s\n%s", path, "\n".join(lines))
-    print(json.dumps(table_rows(rows)))
+    print(json.dumps(trs))
