@@ -189,8 +189,8 @@ def test_unknown_ablation_is_refused_before_any_work(tmp_path, capsys):
 
 
 def test_ablation_over_two_seeds_keeps_each_run_and_averages_them(small_synthetic, tmp_path):
-    """`--seeds 0 1`: the first seed's run keeps the one-seed layout, the second lands
-    beside it with seed=1 in its config; the row is the mean of the two evaluations."""
+    """`--seeds 0 1`: seed 0's run keeps the one-seed layout, seed 1's lands beside it
+    with seed=1 in its config; the row is the mean of the two evaluations."""
     from cogs.eval.ablation import run_ablation
 
     out = tmp_path / "abl"

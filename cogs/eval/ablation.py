@@ -1,9 +1,10 @@
 """The CoGS ablation table: one run per removed component and seed, evaluated alike.
 
 Each variant is a set of config overrides on the chosen preset (see
-`cogs.commands.ABLATIONS`). A variant's run with the first seed lives in OUT/<variant>,
-with any other seed k in OUT/<variant>.seed<k> (seed 0 adds no override, so a one-seed
-ablation keeps the old layout). An interrupted ablation resumes; finished runs are reused.
+`cogs.commands.ABLATIONS`). A variant's run with seed 0 (the config's default, no
+override) lives in OUT/<variant>, with any other seed k in OUT/<variant>.seed<k>, so a
+one-seed ablation keeps the old layout and adding a seed reuses the runs already there.
+An interrupted ablation resumes; finished runs are reused.
 
 With several seeds each row holds the mean over them, and ablation.md writes every value
 as mean ± half the range over seeds. A value is starred where the variant's range over
@@ -32,9 +33,9 @@ def slug(name: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
 
 
-def run_dir(out: Path, name: str, seed: int, first_seed: int) -> Path:
-    """Where a variant's run with `seed` lives (the first seed: OUT/<variant>)."""
-    return Path(out) / (slug(name) if seed == first_seed else f"{slug(name)}.seed{seed}")
+def run_dir(out: Path, name: str, seed: int) -> Path:
+    """Where a variant's run with `seed` lives."""
+    return Path(out) / (slug(name) if seed == 0 else f"{slug(name)}.seed{seed}")
 
 
 def seed_overrides(overrides: list[str], seed: int) -> list[str]:
@@ -51,7 +52,7 @@ def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, li
     rows: dict[str, dict] = {}
     jobs = [(name, ov, s) for name, ov in variants.items() for s in seeds]
     for i, (name, overrides, seed) in enumerate(jobs):
-        run = run_dir(out, name, seed, seeds[0])
+        run = run_dir(out, name, seed)
         sets = seed_overrides(overrides, seed)
         log.info("ablation %d/%d: %s, seed %d %s", i + 1, len(jobs), name, seed, overrides or "")
         if not (run / "train_summary.json").exists():
