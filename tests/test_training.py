@@ -214,18 +214,20 @@ def test_ablation_over_two_seeds_keeps_each_run_and_averages_them(small_syntheti
 def test_ablation_table_stars_only_what_lies_beyond_the_seed_spread():
     from cogs.eval.ablation import table_rows
 
-    def m(psnr, iou):
-        return {"full": {"psnr": psnr, "ssim": 0.9, "lpips": None}, "decomposition": {"human_iou": iou}}
+    def m(psnr, iou, secs):
+        return {"full": {"psnr": psnr, "ssim": 0.9, "lpips": None}, "decomposition": {"human_iou": iou},
+                "train_seconds": secs}
 
     rows = {
-        "full": {"overrides": [], "seeds": {"0": m(31.0, 0.90), "1": m(30.0, 0.89)}},
-        "worse": {"overrides": ["x"], "seeds": {"0": m(29.5, 0.895), "1": m(29.0, 0.88)}},
+        "full": {"overrides": [], "seeds": {"0": m(31.0, 0.90, 600), "1": m(30.0, 0.89, 610)}},
+        "worse": {"overrides": ["x"], "seeds": {"0": m(29.5, 0.895, 300), "1": m(29.0, 0.88, 310)}},
     }
     full, worse = table_rows(rows)
     assert full["psnr"] == pytest.approx(30.5) and full["spread"]["psnr"] == pytest.approx(0.5)
     assert worse["psnr"] == pytest.approx(29.25) and worse["n_seeds"] == 2
-    assert worse["beyond_spread"] == ["psnr"]  # [29, 29.5] misses [30, 31]; [0.88, 0.895] meets [0.89, 0.9]
+    # [29, 29.5] misses [30, 31]; [0.88, 0.895] meets [0.89, 0.9]; a training time is no measure
+    assert worse["beyond_spread"] == ["psnr"] and worse["train_s"] == pytest.approx(305)
     assert full["beyond_spread"] == [] and worse["lpips"] is None and worse["delta_lpips"] is None
     # A row written before seeds were counted (metrics only) is one seed: nothing starred.
-    old = table_rows({"full": {"metrics": m(31.0, 0.9)}, "worse": {"metrics": m(20.0, 0.5)}})
+    old = table_rows({"full": {"metrics": m(31.0, 0.9, 600)}, "worse": {"metrics": m(20.0, 0.5, 300)}})
     assert [r["n_seeds"] for r in old] == [1, 1] and old[1]["beyond_spread"] == []
