@@ -215,7 +215,7 @@ ABLATIONS: dict[str, list[str]] = {
 
 @dataclass
 class Ablate:
-    """The paper's ablations on a scene: one training run per removed component, one table."""
+    """The paper's ablations on a scene: one training run per removed component and seed, one table."""
 
     out: Path = Path("ablation_out")
     scene: Path | None = None
