@@ -121,19 +121,22 @@ def table_rows(rows: dict[str, dict]) -> list[dict]:
     for name, r in rows.items():
         per = _seed_values(r)
         row = {"variant": name, "n_seeds": len(per), "spread": {}, "beyond_spread": []}
-        for c in COLUMNS:
-            if c == "delta_lpips":
-                continue
+        for c in per[0]:
             vals = [v[c] for v in per]
             row[c] = _mean(vals)
-            row["spread"][c] = (max(vals) - min(vals)) / 2 if row[c] is not None else None
-            if full and name != "full" and c != "train_s" and row[c] is not None and len(per) > 1:
-                ref = [v[c] for v in full]
-                if None not in ref and len(ref) > 1 and (min(vals) > max(ref) or max(vals) < min(ref)):
-                    row["beyond_spread"].append(c)
+            row["spread"][c] = None if row[c] is None else (max(vals) - min(vals)) / 2
+            if full and name != "full" and c != "train_s" and _apart(vals, [v[c] for v in full]):
+                row["beyond_spread"].append(c)
         row["delta_lpips"] = row["lpips"] - full_lpips if row["lpips"] is not None and full_lpips is not None else None
         out.append(row)
     return out
+
+
+def _apart(vals: list, ref: list) -> bool:
+    """Whether two ranges over seeds (two runs or more each, all measured) do not overlap."""
+    if len(vals) < 2 or len(ref) < 2 or None in vals or None in ref:
+        return False
+    return min(vals) > max(ref) or max(vals) < min(ref)
 
 
 def _mean(vals: list) -> float | None:
