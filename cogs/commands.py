@@ -134,8 +134,9 @@ class Demo:
         times["synth"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        done = (self.out / "train_summary.json").exists()
-        if not done:
+        from cogs.train.trainer import run_is_finished
+
+        if not run_is_finished(self.out):
             resume = (self.out / "checkpoints" / "last.pt").exists()
             Train(scene_dir, self.out, preset=self.preset, set=[] if resume else self.set, resume=resume).run()
         times["train"] = time.perf_counter() - t0

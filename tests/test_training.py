@@ -24,7 +24,7 @@ TINY = [
     "branches.human.n_gaussians=1500", "branches.human.triplane_resolution=16", "branches.object.max_gaussians=400",
     "branches.object.hull_resolution=16", "checkpoint_every=3", "visibility_every=4", "plane_assign_every=3",
     "human_density.refine_every=2", "object_density.refine_every=2", "scene_density.refine_every=2",
-    "scene_density.max_gaussians=3000", "branches.color_init_frames=4",
+    "scene_density.max_gaussians=3000", "branches.color_init_frames=4", "refit.steps=4",
 ]
 
 
@@ -49,7 +49,7 @@ def test_six_stages_train_evaluate_and_export(small_synthetic, tmp_path):
     for s in ("I", "II", "III", "IV", "V", "VI"):
         assert f"stage_{s}.pt" in names
     log = json.loads((run / "train_log.json").read_text())
-    assert {h["stage"] for h in log["history"]} == {"I", "II", "III", "IV", "V", "VI"}
+    assert {h["stage"] for h in log["history"]} == {"I", "II", "III", "IV", "V", "VI", "refit"}
     assert all(np.isfinite(h["loss"]) for h in log["history"])
     assert (run / "final" / "human_canonical.ply").exists() and (run / "final" / "scene.ply").exists()
     assert main(["eval", "--run", str(run)]) == 0
@@ -68,7 +68,8 @@ def test_six_stages_train_evaluate_and_export(small_synthetic, tmp_path):
     assert set(bpe) == {"input_train", "input_test", "fitted_train", "fitted_test"}
     assert bpe["input_train"] > 0.2  # the scene's input poses carry the synthetic noise
     assert all(np.isfinite(v) and v >= 0 for v in bpe.values()) and bpe["fitted_train"] != bpe["input_train"]
-    assert set(m["stage_seconds"]) == {"I", "II", "III", "IV", "V", "VI"}
+    assert set(m["stage_seconds"]) == {"I", "II", "III", "IV", "V", "VI", "refit"}
+    assert m["stages"] == ["I", "II", "III", "IV", "V", "VI", "refit"]
     if m["full"]["lpips"] is None:
         assert any("lpips" in n for n in m["notes"])  # a null always says why
     assert (run / "eval" / "renders").is_dir()
@@ -78,7 +79,7 @@ def test_single_stage_ablation_trains_all_branches_jointly(small_synthetic, tmp_
     run = tmp_path / "joint"
     _train(small_synthetic, run, ["schedule.single_stage=true"])
     log = json.loads((run / "train_log.json").read_text())
-    assert {h["stage"] for h in log["history"]} == {"joint"}
+    assert {h["stage"] for h in log["history"]} == {"joint", "refit"}
     assert all(h["human"] > 0 and h["object"] > 0 and h["scene"] > 0 for h in log["history"])
 
 

@@ -46,6 +46,7 @@ def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, li
                  seeds: tuple[int, ...] = (0,)) -> dict:
     from cogs.commands import Train
     from cogs.eval.evaluate import evaluate
+    from cogs.train.trainer import run_is_finished
 
     assert seeds and len(set(seeds)) == len(seeds), seeds
     out = Path(out)
@@ -55,10 +56,12 @@ def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, li
         run = run_dir(out, name, seed)
         sets = seed_overrides(overrides, seed)
         log.info("ablation %d/%d: %s, seed %d %s", i + 1, len(jobs), name, seed, overrides or "")
-        if not (run / "train_summary.json").exists():
+        trained = not run_is_finished(run)
+        if trained:
             resume = (run / "checkpoints" / "last.pt").exists()
             Train(Path(scene_dir), run, preset=preset, set=[] if resume else sets, resume=resume).run()
-        m = read_json(run / "eval" / "metrics.json") if (run / "eval" / "metrics.json").exists() else evaluate(run, save_renders=False)
+        saved = run / "eval" / "metrics.json"
+        m = read_json(saved) if saved.exists() and not trained else evaluate(run, save_renders=False)
         row = rows.setdefault(name, {"overrides": overrides, "seeds": {}})
         row["seeds"][str(seed)] = m
         row["metrics"] = mean_metrics(list(row["seeds"].values()))

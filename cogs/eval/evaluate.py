@@ -69,6 +69,11 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
     scene, comp = trainer.scene, trainer.compositor
     gt = scene.gt
     notes: list[str] = []
+    if not trainer.finished():
+        msg = (f"{run} is unfinished: it stopped in stage {trainer.stage_in_progress()} after {trainer.state.step} "
+               f"steps; these numbers are of that state (`cogs train --resume --out {run}` finishes it)")
+        log.warning(msg)
+        notes.append(msg)
     protocol = scene.source.get("protocol", "hosnerf-16")
     test = list(scene.split["test"])
     if not test:
@@ -83,9 +88,7 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
                             show_progress=show_progress)
     fitted = None
     if pose_fit_steps > 0 and comp.human is not None and comp.human.cfg.refine_pose:
-        from cogs.eval.posefit import fit_pose
-
-        poses = {t: fit_pose(comp, scene, t, steps=pose_fit_steps) for t in track(test, "eval: test-time pose fit", show_progress)}
+        poses = _test_time_poses(trainer, test, pose_fit_steps, show_progress)
         fitted = _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, None, poses,
                                 "eval: frames with fitted poses", show_progress)
     full, hcrop, ocrop, h_iou, o_iou = strict
@@ -132,6 +135,26 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
     metrics["notes"] = _summarise_notes(notes)
     write_json(out / "metrics.json", metrics)
     return metrics
+
+
+def _test_time_poses(trainer, test: list[int], steps: int, show_progress: bool) -> dict:
+    """Each held-out frame's body pose fitted to its own image (the training's pose refit,
+    `cogs.train.posefit`, with `steps` Adam steps): the Anim-NeRF / InstantAvatar protocol."""
+    from dataclasses import replace
+
+    from cogs.train.posefit import fit_frame_pose, posed
+
+    scene, comp = trainer.scene, trainer.compositor
+    opts = replace(trainer.cfg.refit, steps=steps)
+    out = {}
+    for t in track(test, "eval: test-time pose fit", show_progress):
+        vm = torch.as_tensor(scene.cameras.world_to_camera[t], dtype=torch.float32)
+        K = torch.as_tensor(scene.cameras.K[t], dtype=torch.float32)
+        img = torch.as_tensor(scene.images[t]).float() / 255.0
+        fit = fit_frame_pose(comp, img, vm, K, t, opts)
+        with torch.no_grad():
+            out[t] = posed(comp.human, t, fit)
+    return out
 
 
 def _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, rdir, poses=None,

@@ -105,7 +105,7 @@ def plot_losses(train_log: dict, path: Path) -> None:
                 ax.plot(steps, vals, label=k, lw=1.2 if k == "loss" else 0.8)
         ax.set_yscale("log")
         ax.set_title(f"stage {st}", fontsize=9)
-        ax.set_xlabel("step", fontsize=8)
+        ax.set_xlabel("training frame (in order)" if st == "refit" else "step", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.legend(fontsize=6, loc="upper right")
     fig.tight_layout()

@@ -12,6 +12,9 @@ Stages (iteration counts in `Schedule`):
          warm-up            densification; human/object topology conservative
     VI   true resume        continues V's optimizers and density state; all terms incl.
                             anchoring, object motion and the delayed plane term
+    refit                   every training frame's body pose fitted again against the
+                            finished model (`PoseRefit`, `posefit.py`); held-out frames
+                            interpolate these poses
 
 The trainer only sequences: losses live in `losses.py` and the branches, density
 control in `density.py`, checkpoint files in `checkpoint.py`. Everything random draws from
@@ -85,6 +88,31 @@ class RunState:
     history: list[dict] = field(default_factory=list)
     stage_seconds: dict[str, float] = field(default_factory=dict)
     density_events: list[dict] = field(default_factory=list)
+
+
+def stage_names(cfg: TrainConfig) -> list[str]:
+    """The stages a run of `cfg` goes through, in order."""
+    if cfg.schedule.single_stage:
+        names = ["joint"]
+    else:
+        names = [s for s in STAGES if getattr(cfg.schedule, s) > 0 or s in ("V", "VI")]
+    hc = cfg.branches.human
+    if cfg.refit.steps > 0 and hc.refine_pose and hc.per_frame_pose:
+        names.append("refit")
+    return names
+
+
+def run_is_finished(run: Path) -> bool:
+    """Whether `run` went through every stage its config asks for. A run trained before a
+    stage was added is not: `cogs train --resume` then runs just the new stage."""
+    from cogs.config import load_config
+    from cogs.data.io import read_json
+
+    run = Path(run)
+    summary, config = run / "train_summary.json", run / "config.yaml"
+    if not summary.exists() or not config.exists():
+        return False
+    return read_json(summary).get("stages") == stage_names(load_config(config))
 
 
 def scene_extent(viewmats: torch.Tensor) -> float:
@@ -357,14 +385,21 @@ class Trainer:
 
     # -- the loop ---------------------------------------------------------------------------
     def _stage_names(self) -> list[str]:
-        if self.cfg.schedule.single_stage:
-            return ["joint"]
-        return [s for s in STAGES if getattr(self.cfg.schedule, s) > 0 or s in ("V", "VI")]
+        return stage_names(self.cfg)
 
     def _stage_length(self, name: str) -> int:
         if name == "joint":
             return self.cfg.schedule.total()
+        if name == "refit":  # one step per training frame
+            return len(self.data.train)
         return getattr(self.cfg.schedule, name)
+
+    def finished(self) -> bool:
+        return self.state.stage >= len(self._stage_names())
+
+    def stage_in_progress(self) -> str | None:
+        names = self._stage_names()
+        return names[self.state.stage] if self.state.stage < len(names) else None
 
     def run(self) -> dict:
         from cogs.log import progress, rate_text
@@ -404,6 +439,8 @@ class Trainer:
         self._checkpoint(tag=f"stage_{name}")
 
     def _step(self, name: str, it: int, n: int) -> str:
+        if name == "refit":
+            return self._refit_step(it)
         cfg = self.cfg
         d = self.data
         single = name == "joint"
@@ -442,6 +479,22 @@ class Trainer:
         if it % cfg.log_every == 0 or it == n - 1:
             self.state.history.append(entry)
         return f"loss {_val(loss):.4f}  G {self.counts()['total']}"
+
+    def _refit_step(self, it: int) -> str:
+        """Fit training frame `it`'s body pose against the finished model and keep it as
+        that frame's per-frame correction. Draws nothing from the generator, so the
+        refit's result is the same whether or not the run was interrupted during it."""
+        from cogs.train.posefit import fit_frame_pose
+
+        d, h = self.data, self.human
+        t = d.train[it]
+        fit = fit_frame_pose(self.compositor, d.images[t], d.viewmats[t], d.Ks[t], t, self.cfg.refit)
+        with torch.no_grad():
+            h.frame_pose_delta[t] += fit.dpose[0]
+            h.frame_transl_delta[t] += fit.dtransl[0]
+        self.state.history.append({"stage": "refit", "step": it, "frame": t, "loss": fit.loss_last,
+                                   "rgb_before": fit.loss_first, **self.counts()})
+        return f"frame {t}  L1 {fit.loss_first:.4f} -> {fit.loss_last:.4f}"
 
     def counts(self) -> dict[str, int]:
         c = {b: (len(getattr(self, _attr(b))) if getattr(self, _attr(b)) is not None else 0) for b in ("human", "object", "scene")}
@@ -603,6 +656,7 @@ class Trainer:
 
     def summary(self) -> dict:
         return {
+            "stages": self._stage_names()[: self.state.stage],
             "train_seconds": sum(self.state.stage_seconds.values()),
             "stage_seconds": dict(self.state.stage_seconds),
             "n_gaussians": {k: v for k, v in self.counts().items() if k != "total"},
