@@ -57,9 +57,10 @@ class PoseRefit:
 
     The poses stages I-II fitted were fitted against an appearance that V-VI then kept
     changing; refitted, they agree with the appearance the held-out frames are rendered
-    with. Demo scene, two seeds (held-out human IoU / crop dB): 0.897 / 24.77 -> see
-    docs/architecture.md, "The pose refit". `cogs eval`'s test-time fit uses the same
-    loss and options on the held-out frames' own images (reported apart)."""
+    with. Demo scene, held-out human IoU / crop dB: 0.897 / 24.77 -> 0.907 / 25.52, and
+    with `seed=1` 0.893 / 24.23 -> 0.907 / 25.41 (docs/architecture.md, "The six stages
+    and the pose refit"). `cogs eval`'s test-time fit uses the same loss and options on
+    the held-out frames' own images (reported apart)."""
 
     steps: int = 20
     """Adam steps per frame; 0 skips the refit."""
