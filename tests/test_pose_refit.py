@@ -142,3 +142,17 @@ def test_refit_moves_only_the_training_frames_poses(unrefitted, small_synthetic,
     for b in ("object", "scene"):
         for k, v in before["branches"][b].items():
             torch.testing.assert_close(after["branches"][b][k], v, rtol=0, atol=0, msg=f"{b}.{k}")
+
+
+def test_fit_of_a_person_out_of_view_changes_nothing(unrefitted):
+    """A camera turned away from the person: no pixel depends on the pose, so the fit
+    returns a zero correction and a finite, unchanged image loss."""
+    tr = load_run(unrefitted)
+    scene, comp = tr.scene, tr.compositor
+    t = int(scene.split["train"][0])
+    vm, K, img = _frame(scene, t)
+    away = vm.clone()
+    away[:3] = torch.diag(torch.tensor([-1.0, 1.0, -1.0])) @ vm[:3]  # half a turn about the camera's y axis
+    fit = fit_frame_pose(comp, img, away, K, t, PoseRefit(steps=5))
+    assert torch.count_nonzero(fit.dpose) == 0 and torch.count_nonzero(fit.dtransl) == 0
+    assert fit.loss_first == fit.loss_last and 0 < fit.loss_first < 1

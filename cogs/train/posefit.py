@@ -54,14 +54,17 @@ def fit_frame_pose(comp, image: Tensor, viewmat: Tensor, K: Tensor, t: int, opts
     starting from `pose` (default: the pose the human branch gives frame t)."""
     human = comp.human
     H, W = int(image.shape[0]), int(image.shape[1])
+    zero = (torch.zeros(1, len(human.refined_bones), 3), torch.zeros(1, 3))
     with torch.no_grad():
         state = human.decode()
         base_pose, base_transl = pose if pose is not None else human.frame_pose(t)
         alone = comp.render(viewmat, K, W, H, t, branches=("human",), background=torch.zeros(3),
                             human_pose=(base_pose, base_transl), human_state=state)
         foot = alone.alpha[..., 0] > 0.01
-        if not bool(foot.any()):  # the person is off screen: nothing in the image to fit
-            return PoseFit(torch.zeros(1, len(human.refined_bones), 3), torch.zeros(1, 3), float("nan"), float("nan"))
+        if not bool(foot.any()):  # the person is off screen: no pixel depends on the pose
+            r = comp.render(viewmat, K, W, H, t, background=torch.zeros(3), human_pose=(base_pose, base_transl))
+            l1 = float(L.l1(r.rgb, image))
+            return PoseFit(*zero, l1, l1)
         y0, y1, x0, x1 = L.crop_box(foot, foot, pad=opts.pad)
         Kc = K.clone()
         Kc[0, 2] -= x0
@@ -73,25 +76,28 @@ def fit_frame_pose(comp, image: Tensor, viewmat: Tensor, K: Tensor, t: int, opts
             others = {b: _subset(s, seen.raw.radii[seen.slices[b]] > 0) for b, s in others.items()}
     target = image[y0:y1, x0:x1]
     scale = 1.0 / (H * W * 3)  # the whole frame's L1 mean: pixels outside the box do not change
-    dp = torch.zeros(1, len(human.refined_bones), 3, requires_grad=True)
-    dt = torch.zeros(1, 3, requires_grad=True)
-    opt = torch.optim.Adam([{"params": [dp], "lr": opts.lr}, {"params": [dt], "lr": opts.lr * 0.5}])
-    losses = []
-    for _ in range(opts.steps + 1):
-        opt.zero_grad()
+
+    def image_l1(dp: Tensor, dt: Tensor) -> Tensor:
         p = base_pose.index_add(1, human.refined_bones, dp)
         splats = {"human": comp.human_splats(t, (p, base_transl + dt), state), **others}
         r = comp.render(viewmat, Kc, w, h, t, background=torch.zeros(3), splats=splats)
-        data = (r.rgb - target).abs().sum() * scale
-        losses.append(float(data.detach()))
-        if len(losses) > opts.steps:  # the last pass only measures
-            break
+        return (r.rgb - target).abs().sum() * scale
+
+    dp, dt = (z.clone().requires_grad_(True) for z in zero)
+    opt = torch.optim.Adam([{"params": [dp], "lr": opts.lr}, {"params": [dt], "lr": opts.lr * 0.5}])
+    first = None
+    for _ in range(opts.steps):
+        opt.zero_grad()
+        data = image_l1(dp, dt)
+        first = float(data.detach()) if first is None else first
         loss = data + opts.reg * (dp.square().sum() + dt.square().sum())
         if not torch.isfinite(loss):
             raise FloatingPointError(f"pose fit of frame {t}: loss is {float(loss)}")
         loss.backward()
         opt.step()
-    return PoseFit(dp.detach(), dt.detach(), losses[0], losses[-1])
+    with torch.no_grad():
+        last = float(image_l1(dp, dt))
+    return PoseFit(dp.detach(), dt.detach(), last if first is None else first, last)
 
 
 def posed(human, t: int, fit: PoseFit, pose: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
