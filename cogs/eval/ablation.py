@@ -4,7 +4,8 @@ Each variant is a set of config overrides on the chosen preset (see
 `cogs.commands.ABLATIONS`). A variant's run with seed 0 (the config's default, no
 override) lives in OUT/<variant>, with any other seed k in OUT/<variant>.seed<k>, so a
 one-seed ablation keeps the old layout and adding a seed reuses the runs already there.
-An interrupted ablation resumes; finished runs are reused.
+An interrupted ablation resumes; finished runs are reused, and a run trained before a
+stage was added gets just that stage.
 
 With several seeds each row holds the mean over them, and ablation.md writes every value
 as mean ± half the range over seeds. A value is starred where the variant's range over
