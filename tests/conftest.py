@@ -16,6 +16,17 @@ import torch
 from tests.fixtures import make_tiny_scene
 
 
+@pytest.fixture(scope="module")
+def small_synthetic(tmp_path_factory) -> Path:
+    """A 16-frame synthetic scene at 96x72 (ground truth included), written by cogs synth."""
+    from cogs.data.scene import save_scene
+    from cogs.data.synth import SynthConfig, generate_scene
+
+    root = tmp_path_factory.mktemp("small") / "scene"
+    save_scene(generate_scene(SynthConfig(frames=16, width=96, height=72, points=1500), show_progress=False), root)
+    return root
+
+
 @pytest.fixture(scope="session")
 def body_model():
     from cogs.body import load_body_model

@@ -9,6 +9,15 @@ import numpy as np
 from cogs.data.scene import BodyTrack, CameraTrack, ObjectTrack, PlaneSpec, Scene, default_frame_ids, save_scene
 from cogs.geometry.camera import intrinsics_from_fov, look_at
 
+# `cogs train --set` overrides for a run of every stage in seconds (on `small_synthetic`).
+TINY = [
+    "schedule.I=6", "schedule.II=4", "schedule.III=6", "schedule.IV=6", "schedule.V=8", "schedule.VI=10",
+    "branches.human.n_gaussians=1500", "branches.human.triplane_resolution=16", "branches.object.max_gaussians=400",
+    "branches.object.hull_resolution=16", "checkpoint_every=3", "visibility_every=4", "plane_assign_every=3",
+    "human_density.refine_every=2", "object_density.refine_every=2", "scene_density.refine_every=2",
+    "scene_density.max_gaussians=3000", "branches.color_init_frames=4", "refit.steps=4",
+]
+
 
 def make_tiny_scene(root: Path, n_frames: int = 6, width: int = 40, height: int = 30, seed: int = 0) -> Path:
     """A valid scene: random images, disc masks, a camera arc, zero Anny poses, a box track."""

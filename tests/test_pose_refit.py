@@ -19,11 +19,11 @@ from cogs.train import checkpoint as ckpt
 from cogs.train import losses as L
 from cogs.train.posefit import fit_frame_pose, posed
 from cogs.train.trainer import load_run, run_is_finished
-from tests.test_training import TINY, small_synthetic  # noqa: F401  (the fixture)
+from tests.fixtures import TINY
 
 
 @pytest.fixture(scope="module")
-def unrefitted(small_synthetic, tmp_path_factory) -> Path:  # noqa: F811
+def unrefitted(small_synthetic, tmp_path_factory) -> Path:
     """A tiny run trained through stage VI with the refit switched off."""
     run = tmp_path_factory.mktemp("refit") / "run"
     assert main(["train", "--scene", str(small_synthetic), "--out", str(run), "--set", *TINY, "refit.steps=0"]) == 0
@@ -102,7 +102,7 @@ def test_fit_recovers_a_displaced_pose(unrefitted):
     assert fit.loss_last < 0.5 * fit.loss_first
 
 
-def test_refit_moves_only_the_training_frames_poses(unrefitted, small_synthetic, tmp_path):  # noqa: F811
+def test_refit_moves_only_the_training_frames_poses(unrefitted, small_synthetic, tmp_path):
     """A run trained before the refit existed (config without it, summary without stages)
     is unfinished under today's config; `--resume` runs just the refit: the training
     frames' per-frame pose corrections change, nothing else does."""

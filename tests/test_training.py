@@ -16,26 +16,8 @@ import torch
 
 from cogs.cli import main
 from cogs.config import apply_overrides, quick_config
-from cogs.data.scene import load_scene, save_scene
 from cogs.train import checkpoint as ckpt
-
-TINY = [
-    "schedule.I=6", "schedule.II=4", "schedule.III=6", "schedule.IV=6", "schedule.V=8", "schedule.VI=10",
-    "branches.human.n_gaussians=1500", "branches.human.triplane_resolution=16", "branches.object.max_gaussians=400",
-    "branches.object.hull_resolution=16", "checkpoint_every=3", "visibility_every=4", "plane_assign_every=3",
-    "human_density.refine_every=2", "object_density.refine_every=2", "scene_density.refine_every=2",
-    "scene_density.max_gaussians=3000", "branches.color_init_frames=4", "refit.steps=4",
-]
-
-
-@pytest.fixture(scope="module")
-def small_synthetic(tmp_path_factory) -> Path:
-    """A 16-frame synthetic scene at 96x72 (ground truth included), written by cogs synth."""
-    from cogs.data.synth import SynthConfig, generate_scene
-
-    root = tmp_path_factory.mktemp("small") / "scene"
-    save_scene(generate_scene(SynthConfig(frames=16, width=96, height=72, points=1500), show_progress=False), root)
-    return root
+from tests.fixtures import TINY
 
 
 def _train(scene_dir: Path, out: Path, extra: list[str] = ()) -> None:

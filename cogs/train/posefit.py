@@ -85,11 +85,11 @@ def fit_frame_pose(comp, image: Tensor, viewmat: Tensor, K: Tensor, t: int, opts
 
     dp, dt = (z.clone().requires_grad_(True) for z in zero)
     opt = torch.optim.Adam([{"params": [dp], "lr": opts.lr}, {"params": [dt], "lr": opts.lr * 0.5}])
-    first = None
+    seen_l1 = []
     for _ in range(opts.steps):
         opt.zero_grad()
         data = image_l1(dp, dt)
-        first = float(data.detach()) if first is None else first
+        seen_l1.append(float(data.detach()))
         loss = data + opts.reg * (dp.square().sum() + dt.square().sum())
         if not torch.isfinite(loss):
             raise FloatingPointError(f"pose fit of frame {t}: loss is {float(loss)}")
@@ -97,7 +97,7 @@ def fit_frame_pose(comp, image: Tensor, viewmat: Tensor, K: Tensor, t: int, opts
         opt.step()
     with torch.no_grad():
         last = float(image_l1(dp, dt))
-    return PoseFit(dp.detach(), dt.detach(), last if first is None else first, last)
+    return PoseFit(dp.detach(), dt.detach(), seen_l1[0] if seen_l1 else last, last)
 
 
 def posed(human, t: int, fit: PoseFit, pose: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:

@@ -394,12 +394,12 @@ class Trainer:
             return len(self.data.train)
         return getattr(self.cfg.schedule, name)
 
-    def finished(self) -> bool:
-        return self.state.stage >= len(self._stage_names())
-
     def stage_in_progress(self) -> str | None:
         names = self._stage_names()
         return names[self.state.stage] if self.state.stage < len(names) else None
+
+    def finished(self) -> bool:
+        return self.stage_in_progress() is None
 
     def run(self) -> dict:
         from cogs.log import progress, rate_text
