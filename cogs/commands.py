@@ -50,6 +50,8 @@ class Train:
     state, step and random state are restored)."""
     print_config: bool = False
     """Print the fully resolved config as YAML and exit."""
+    device: str = "cpu"
+    """Where to train: `cpu`, or `cuda` / `cuda:N` (rasterizes with gsplat; needs the cuda extra)."""
 
     def run(self) -> int:
         import yaml
@@ -69,9 +71,10 @@ class Train:
         if self.print_config:
             print(yaml.safe_dump(to_dict(cfg), sort_keys=False))
             return 0
+        device = check_device(self.device)
         scene = load_scene(self.scene)
         t0 = time.perf_counter()
-        summary = Trainer(scene, cfg, self.out, resume=self.resume).run()
+        summary = Trainer(scene, cfg, self.out, resume=self.resume, device=device).run()
         log.info("trained in %.0f s (%s); Gaussians %s", time.perf_counter() - t0,
                  ", ".join(f"{k} {v:.0f}s" for k, v in summary["stage_seconds"].items()), summary["n_gaussians"])
         return 0
@@ -90,11 +93,14 @@ class Eval:
     pose_fit_steps: int = 40
     """Also report metrics after fitting each held-out frame's body pose to that frame
     (`test_time_pose_fit`, the Anim-NeRF/InstantAvatar protocol); 0 = strict numbers only."""
+    device: str = "cpu"
+    """Where to render: `cpu`, or `cuda` / `cuda:N`."""
 
     def run(self) -> int:
         from cogs.eval.evaluate import evaluate
 
-        m = evaluate(self.run_dir, self.out, save_renders=self.renders, pose_fit_steps=self.pose_fit_steps)
+        m = evaluate(self.run_dir, self.out, save_renders=self.renders, pose_fit_steps=self.pose_fit_steps,
+                     device=check_device(self.device))
         print(json.dumps(m, indent=1))
         return 0
 
@@ -115,6 +121,8 @@ class Demo:
     seed: int = 0
     videos: bool = True
     """Render the camera-path and orbit videos into the report."""
+    device: str = "cpu"
+    """Where to train, evaluate and render: `cpu`, or `cuda` / `cuda:N`."""
 
     def run(self) -> int:
         from cogs.data.validate import check_scene
@@ -136,21 +144,23 @@ class Demo:
         t0 = time.perf_counter()
         from cogs.train.trainer import run_is_finished
 
+        device = check_device(self.device)
         if not run_is_finished(self.out):
             resume = (self.out / "checkpoints" / "last.pt").exists()
-            Train(scene_dir, self.out, preset=self.preset, set=[] if resume else self.set, resume=resume).run()
+            Train(scene_dir, self.out, preset=self.preset, set=[] if resume else self.set, resume=resume,
+                  device=device).run()
         times["train"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
         from cogs.eval.evaluate import evaluate
         from cogs.eval.report import write_report
 
-        metrics = evaluate(self.out)
+        metrics = evaluate(self.out, device=device)
         shutil.copyfile(self.out / "eval" / "metrics.json", self.out / "metrics.json")
         times["eval"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         html = write_report(self.out, title="cogs demo: synthetic human-object scene",
-                            extra={"preset": self.preset}, videos=self.videos)
+                            extra={"preset": self.preset}, videos=self.videos, device=device)
         times["report"] = time.perf_counter() - t0
         times["total"] = time.perf_counter() - t_all
         (self.out / "demo_times.json").write_text(json.dumps(times, indent=1))
@@ -175,28 +185,47 @@ class RenderInit:
     def run(self) -> int:
         import numpy as np
 
-        from cogs.branches.build import build_branches
-        from cogs.branches.compositor import Compositor
-        from cogs.data.scene import load_scene
-        from cogs.eval.evaluate import render_frame
-        from cogs.eval.report import _label
-
+        from cogs.branches.build import build_human, build_object, build_scene
         from cogs.data.io import write_image
+        from cogs.data.scene import load_scene
+        from cogs.eval.evaluate import _numpy, render_frame
+        from cogs.eval.report import _label
+        from cogs.model import Model
 
         scene = load_scene(self.scene)
         cfg = _resolved_config(self.preset, [])
-        h, o, s = build_branches(scene, cfg.branches, cfg.backend)
-        comp = Compositor(h, o, s, backend=cfg.backend)
+        built = [build_human(scene, cfg.branches, cfg.backend), build_object(scene, cfg.branches, cfg.backend),
+                 build_scene(scene, cfg.branches)]
+        model = Model({b.name: b for b in built if b is not None}, backend=cfg.backend)
         rows = []
         for t in np.linspace(0, scene.n_frames - 1, self.frames).round().astype(int):
             cells = [_label(scene.images[t], f"GT frame {t}")]
-            cells.append(_label(render_frame(comp, scene, int(t)).rgb.clamp(0, 1).numpy(), "composite (init)"))
-            for b in comp.available():
-                cells.append(_label(render_frame(comp, scene, int(t), branches=(b,)).rgb.clamp(0, 1).numpy(), b))
+            cells.append(_label(_numpy(render_frame(model, scene, int(t)).rgb), "composite (init)"))
+            for b in model.available():
+                cells.append(_label(_numpy(render_frame(model, scene, int(t), branches=(b,)).rgb), b))
             rows.append(np.concatenate(cells, axis=1))
         write_image(self.out, np.concatenate(rows, axis=0))
         log.info("wrote %s", self.out)
         return 0
+
+
+def check_device(name: str) -> str:
+    """`--device`: cpu, cuda or cuda:N, and only where this torch has it (before any work)."""
+    import re
+
+    import torch
+
+    if name == "cpu":
+        return name
+    if not re.fullmatch(r"cuda(:\d+)?", name):
+        raise UserError(f"--device {name!r}: expected cpu, cuda or cuda:N")
+    if not torch.cuda.is_available():
+        raise UserError(f"--device {name}: this torch ({torch.__version__}) sees no CUDA device; use --device cpu, "
+                        "or install a CUDA build of torch and the cuda extra (README, Installation)")
+    index = int(name.split(":")[1]) if ":" in name else 0
+    if index >= torch.cuda.device_count():
+        raise UserError(f"--device {name}: only {torch.cuda.device_count()} CUDA device(s) here")
+    return name
 
 
 def _fmt(x: float | None) -> str:
@@ -226,6 +255,8 @@ class Ablate:
     """Run only these variants (names as in the table; default all)."""
     seeds: list[int] = field(default_factory=lambda: [0])
     """Train every variant once per seed (e.g. 0 1): the table gives mean ± half-range."""
+    device: str = "cpu"
+    """Where to train and evaluate: `cpu`, or `cuda` / `cuda:N`."""
 
     def run(self) -> int:
         from cogs.data.validate import check_scene
@@ -242,5 +273,5 @@ class Ablate:
             scene = self.out / "scene"
             if not ((scene / "scene.json").exists() and not check_scene(scene)):
                 _synthesize(scene, preview=False)
-        run_ablation(scene, self.out, self.preset, variants, seeds=tuple(self.seeds))
+        run_ablation(scene, self.out, self.preset, variants, seeds=tuple(self.seeds), device=check_device(self.device))
         return 0

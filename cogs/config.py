@@ -18,16 +18,7 @@ import yaml
 from cogs.branches.build import BranchesConfig
 from cogs.errors import UserError
 
-STAGES = ("I", "II", "III", "IV", "V", "VI")
-STAGE_TITLES = {
-    "I": "human base",
-    "II": "human alpha/boundary refinement",
-    "III": "object pose and appearance",
-    "IV": "object silhouette/rotation polish",
-    "V": "compositional warm-up",
-    "VI": "true-resume refinement",
-    "refit": "body poses of the training frames, fitted again",
-}
+STAGES = ("I", "II", "III", "IV", "V", "VI")  # what each does: cogs.train.stages
 
 
 @dataclass
@@ -122,6 +113,8 @@ class LossWeights:
     rest_rotation: float = 0.5
     """Mean turn (radians) between consecutive frames at rest."""
     # -- composition (V, VI) --
+    compose_rgb: float = 1.0
+    """Full-frame RGB term of the composite render (L1 + D-SSIM as above)."""
     compose_human_mask: float = 0.1
     compose_object_mask: float = 0.2
     plane: float = 1.0
@@ -147,8 +140,6 @@ class Density:
     start_fraction: float = 0.0
     """Fraction of the stage before density control starts."""
     stop_fraction: float = 0.8
-    reset_opacity_every: int = 0
-    """Opacity reset period (0 = never; CoGS VI avoids aggressive resets)."""
     max_gaussians: int = 200_000
     clone_only: bool = False
     """Never split (conservative topology)."""

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from cogs.branches.build import BranchesConfig, build_branches
-from cogs.branches.compositor import Compositor
+from cogs.branches.build import BranchesConfig, build_human, build_object, build_scene
 from cogs.branches.gaussians import GaussianSet
 from cogs.branches.human import HumanBranch, HumanConfig, compute_visibility, sample_human_seed
 from cogs.data.scene import load_scene
 from cogs.geometry.camera import intrinsics_from_fov, look_at
 from cogs.geometry.rotations import axis_angle_to_rotmat, quat_to_rotmat
+from cogs.model import Model
 from cogs.render import rasterize
 
 
@@ -192,7 +192,8 @@ def test_visibility_scores_and_anchor_gradients(body_model):
     human_masks = np.ones((T, H, W), bool)
     object_masks = np.zeros((T, H, W), bool)
     object_masks[:, : H // 3, :] = True  # the object hides the head region in every frame
-    v = compute_visibility(h, [0, 1, 2], w2c, K.expand(T, 3, 3), W, H, human_masks, object_masks, backend="cpu")
+    person = lambda t: torch.from_numpy(human_masks[t] & ~object_masks[t])  # noqa: E731
+    v = compute_visibility(h, [0, 1, 2], w2c, K.expand(T, 3, 3), W, H, person, backend="cpu")
     h.visibility.copy_(v)
     means = h.seed_means
     cam_y = -3.0
@@ -232,8 +233,8 @@ def tiny_branches(tmp_path_factory):
     cfg = BranchesConfig()
     cfg.human.n_gaussians = 2000
     cfg.human.triplane_resolution = 16
-    h, o, s = build_branches(scene, cfg, backend="cpu")
-    return scene, Compositor(h, o, s, backend="cpu")
+    built = [build_human(scene, cfg, "cpu"), build_object(scene, cfg, "cpu"), build_scene(scene, cfg)]
+    return scene, Model({b.name: b for b in built}, backend="cpu")
 
 
 def _cam(scene, t):
@@ -342,19 +343,17 @@ def test_rest_losses_hold_a_resting_object_still_and_leave_the_motion():
 def test_held_out_interpolation_weights_reproduce_cubic_motion():
     from cogs.branches.human import _lagrange_neighbours
 
-    trained = torch.ones(20, dtype=torch.bool)
-    trained[[0, 6, 12]] = False
+    trained = [t not in (0, 6, 12) for t in range(20)]
     frames, w = _lagrange_neighbours(6, trained, per_side=2, max_gap=3)
-    assert frames.tolist() == [4, 5, 7, 8]
-    x = frames.double()
+    assert frames == [4, 5, 7, 8]
+    x, w = torch.tensor(frames, dtype=torch.float64), torch.tensor(w, dtype=torch.float64)
     for f in (lambda s: 1.0 + 0 * s, lambda s: s, lambda s: s**3 - 2 * s**2):
-        torch.testing.assert_close((w.double() * f(x)).sum(), f(torch.tensor(6.0, dtype=torch.float64)))
+        torch.testing.assert_close((w * f(x)).sum(), f(torch.tensor(6.0, dtype=torch.float64)))
     # one side only (the clip's first frame) or nothing within reach: no interpolation
     assert _lagrange_neighbours(0, trained, 2, 3) is None
-    far = torch.zeros(20, dtype=torch.bool)
-    far[[2, 15]] = True
+    far = [t in (2, 15) for t in range(20)]
     assert _lagrange_neighbours(8, far, 2, 3) is None
-    assert _lagrange_neighbours(7, trained, 1, 3)[0].tolist() == [5, 8]  # nearest trained on each side
+    assert _lagrange_neighbours(7, trained, 1, 3)[0] == [5, 8]  # nearest trained on each side
 
 
 def _jittered_human(body_model, T: int = 40, jitter: float = 0.03, seed: int = 0, speed: float = 0.15,
@@ -439,7 +438,8 @@ def test_visibility_saturates_at_the_full_frame_count(body_model):
     scores = {}
     for n_full in (0, 1):
         h.cfg = dataclasses.replace(cfg, visibility_full_frames=n_full)
-        scores[n_full] = compute_visibility(h, [0, 1, 2], w2c, K, W, H, human_masks, object_masks, backend="cpu")
+        person = lambda t: torch.from_numpy(human_masks[t] & ~object_masks[t])  # noqa: E731
+        scores[n_full] = compute_visibility(h, [0, 1, 2], w2c, K, W, H, person, backend="cpu")
     front = torch.nonzero(seed.normals[:, 1] < -0.9).flatten()
     back = _back_of_torso(seed)
     seen = front[scores[0][front] > 0]

@@ -37,7 +37,7 @@ def test_clone_and_split_follow_gradient_and_size_and_keep_moments_aligned():
     with torch.no_grad():
         b.gaussians.params["scales"][:10] = torch.log(torch.tensor(0.5))  # large: split
     opt = _optimizer(b)
-    ad = dens.adapter_for(b)
+    ad = b.density_adapter()
     old_means = b.gaussians.means.detach().clone()
     old_scales = b.gaussians.scales.detach().clone()
     old_m = opt.state[b.gaussians.params["means"]]["exp_avg"].clone()
@@ -71,7 +71,7 @@ def test_prune_removes_transparent_and_huge_gaussians():
         b.gaussians.params["opacities"][:3] = -10.0
         b.gaussians.params["scales"][3:5] = torch.log(torch.tensor(5.0))
     opt = _optimizer(b)
-    ev = dens.refine(dens.adapter_for(b), dens.new_state(40), Density(), 1.0, [opt], torch.Generator())
+    ev = dens.refine(b.density_adapter(), dens.new_state(40), Density(), 1.0, [opt], torch.Generator())
     assert ev["pruned"] == 5 and len(b) == 35
     assert opt.state[b.gaussians.params["opacities"]]["exp_avg"].shape == (35,)
 
@@ -83,7 +83,7 @@ def test_cap_limits_growth_to_the_highest_gradients():
     st = dens.new_state(40)
     st["grad2d"] = torch.linspace(0.0, 1.0, 40)
     st["count"][:] = 1
-    ev = dens.refine(dens.adapter_for(b), st, Density(grad_threshold=0.1, max_gaussians=45, prune_opacity=0.0, prune_scale=100.0),
+    ev = dens.refine(b.density_adapter(), st, Density(grad_threshold=0.1, max_gaussians=45, prune_opacity=0.0, prune_scale=100.0),
                      10.0, [opt], torch.Generator())
     assert len(b) == 45 and ev["cloned"] == 5
     torch.testing.assert_close(b.gaussians.means[40:], means[35:40])

@@ -18,7 +18,9 @@ from cogs.config import PoseRefit
 from cogs.train import checkpoint as ckpt
 from cogs.train import losses as L
 from cogs.train.posefit import fit_frame_pose, posed
-from cogs.train.trainer import load_run, run_is_finished
+from cogs.data.scene import load_scene
+from cogs.eval.evaluate import load_run
+from cogs.train.trainer import run_is_finished
 from tests.fixtures import TINY
 
 
@@ -36,33 +38,33 @@ def _frame(scene, t):
     return vm, K, torch.as_tensor(scene.images[t]).float() / 255.0
 
 
-def _whole_frame_fit(comp, img, vm, K, t, opts):
+def _whole_frame_fit(model, img, vm, K, t, opts):
     """The reference: the same fit, rendering the whole frame with every Gaussian."""
-    h = comp.human
+    h = model.human
     with torch.no_grad():
         state = h.decode()
         bp, bt = h.frame_pose(t)
-        others = comp.splats(t, vm, tuple(b for b in comp.available() if b != "human"))
+        others = model.splats(t, vm, tuple(b for b in model.available() if b != "human"))
     dp = torch.zeros(1, len(h.refined_bones), 3, requires_grad=True)
     dt = torch.zeros(1, 3, requires_grad=True)
     opt = torch.optim.Adam([{"params": [dp], "lr": opts.lr}, {"params": [dt], "lr": opts.lr * 0.5}])
     for _ in range(opts.steps):
         opt.zero_grad()
-        splats = {"human": comp.human_splats(t, (bp.index_add(1, h.refined_bones, dp), bt + dt), state), **others}
-        r = comp.render(vm, K, img.shape[1], img.shape[0], t, background=torch.zeros(3), splats=splats)
+        pose = (bp.index_add(1, h.refined_bones, dp), bt + dt)
+        splats = {**model.splats(t, vm, ("human",), poses={"human": pose}, prepared={"human": state}), **others}
+        r = model.render(vm, K, img.shape[1], img.shape[0], t, background=torch.zeros(3), splats=splats)
         (L.l1(r.rgb, img) + opts.reg * (dp.square().sum() + dt.square().sum())).backward()
         opt.step()
     return dp.detach(), dt.detach()
 
 
 def test_cropped_fit_is_the_whole_frame_fit(unrefitted):
-    tr = load_run(unrefitted)
-    scene, comp = tr.scene, tr.compositor
+    model, _, scene = load_run(unrefitted)
     t = int(scene.split["train"][3])
     vm, K, img = _frame(scene, t)
     opts = PoseRefit(steps=10)
-    fit = fit_frame_pose(comp, img, vm, K, t, opts)
-    dp, dt = _whole_frame_fit(comp, img, vm, K, t, opts)
+    fit = fit_frame_pose(model, img, vm, K, t, opts)
+    dp, dt = _whole_frame_fit(model, img, vm, K, t, opts)
     assert fit.dpose.abs().max() > 1e-3  # it did move
     # Equal up to float summation order (the crop sums fewer pixels), which Adam's
     # normalised steps carry along: within 2% of the largest correction.
@@ -74,14 +76,13 @@ def test_cropped_fit_is_the_whole_frame_fit(unrefitted):
 def test_fit_recovers_a_displaced_pose(unrefitted):
     """Target = the model's own render at frame t; start from that pose with the arms and
     the body moved: the fit brings the joints most of the way back."""
-    tr = load_run(unrefitted)
-    scene, comp = tr.scene, tr.compositor
-    h = comp.human
+    model, _, scene = load_run(unrefitted)
+    h = model.human
     t = int(scene.split["train"][5])
     vm, K, _ = _frame(scene, t)
     with torch.no_grad():
         true_pose, true_transl = h.frame_pose(t)
-        target = comp.render(vm, K, scene.width, scene.height, t, background=torch.zeros(3)).rgb
+        target = model.render(vm, K, scene.width, scene.height, t, background=torch.zeros(3)).rgb
     g = torch.Generator().manual_seed(0)
     start = (true_pose.index_add(1, h.refined_bones, 0.08 * torch.randn(1, len(h.refined_bones), 3, generator=g)),
              true_transl + torch.tensor([[0.02, -0.01, 0.0]]))
@@ -94,7 +95,7 @@ def test_fit_recovers_a_displaced_pose(unrefitted):
 
     truth = joints_px((true_pose, true_transl))
     before = (joints_px(start) - truth).norm(dim=-1).mean()
-    fit = fit_frame_pose(comp, target, vm, K, t, replace(PoseRefit(), steps=80), pose=start)
+    fit = fit_frame_pose(model, target, vm, K, t, replace(PoseRefit(), steps=80), pose=start)
     with torch.no_grad():
         after = (joints_px(posed(h, t, fit, start)) - truth).norm(dim=-1).mean()
     assert before > 0.5  # pixels: the displacement is visible
@@ -128,7 +129,7 @@ def test_refit_moves_only_the_training_frames_poses(unrefitted, small_synthetic,
     assert summary["stages"][-2:] == ["VI", "refit"] and summary["stage_seconds"]["refit"] > 0
     log = json.loads((run / "train_log.json").read_text())["history"]
     refits = [e for e in log if e["stage"] == "refit"]
-    scene = load_run(run).scene
+    scene = load_scene(json.loads((run / "run.json").read_text())["scene"])
     train = [int(t) for t in scene.split["train"]]
     assert [e["frame"] for e in refits] == train
 
@@ -147,12 +148,11 @@ def test_refit_moves_only_the_training_frames_poses(unrefitted, small_synthetic,
 def test_fit_of_a_person_out_of_view_changes_nothing(unrefitted):
     """A camera turned away from the person: no pixel depends on the pose, so the fit
     returns a zero correction and a finite, unchanged image loss."""
-    tr = load_run(unrefitted)
-    scene, comp = tr.scene, tr.compositor
+    model, _, scene = load_run(unrefitted)
     t = int(scene.split["train"][0])
     vm, K, img = _frame(scene, t)
     away = vm.clone()
     away[:3] = torch.diag(torch.tensor([-1.0, 1.0, -1.0])) @ vm[:3]  # half a turn about the camera's y axis
-    fit = fit_frame_pose(comp, img, away, K, t, PoseRefit(steps=5))
+    fit = fit_frame_pose(model, img, away, K, t, PoseRefit(steps=5))
     assert torch.count_nonzero(fit.dpose) == 0 and torch.count_nonzero(fit.dtransl) == 0
     assert fit.loss_first == fit.loss_last and 0 < fit.loss_first < 1

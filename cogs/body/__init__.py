@@ -41,16 +41,26 @@ MODELS: dict[str, ModelInfo] = {
     "smpl": ModelInfo(n_bones=24, n_shape=10, factory=_smpl),
 }
 
-_instances: dict[str, BodyModel] = {}
+_instances: dict[tuple[str, str], BodyModel] = {}
 
 
-def load_body_model(name: str = "anny") -> BodyModel:
-    """The named body model, built once per process."""
+def load_body_model(name: str = "anny", device=None) -> BodyModel:
+    """The named body model on `device` (default the host), built once per process and
+    device (another device gets a copy of the host's)."""
     if name not in MODELS:
         raise KeyError(f"unknown body model {name!r}; known: {', '.join(sorted(MODELS))}")
-    if name not in _instances:
-        _instances[name] = MODELS[name].factory()
-    return _instances[name]
+    import copy
+
+    import torch
+
+    dev = torch.device("cpu" if device is None else device)
+    key = (name, str(dev))
+    if key not in _instances:
+        if dev.type == "cpu":
+            _instances[key] = MODELS[name].factory()
+        else:
+            _instances[key] = copy.deepcopy(load_body_model(name)).to(dev)
+    return _instances[key]
 
 
 __all__ = [

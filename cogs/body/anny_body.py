@@ -113,22 +113,40 @@ class AnnyBody(BodyModel):
         assert len(self.bone_names) == N_BONES, len(self.bone_names)
         self.shape_names = list(self._anny.phenotype_labels)
         assert self.shape_names == SHAPE_NAMES, self.shape_names
-        self.default_shape = torch.full((len(SHAPE_NAMES),), 0.5)
-        self._faces = self._anny.faces.long()
+        dev = self._anny.vertex_bone_weights.device
+        # Constants as non-persistent buffers: `.to(device)` moves them with the rig.
+        self.register_buffer("default_shape", torch.full((len(SHAPE_NAMES),), 0.5, device=dev), persistent=False)
+        self.register_buffer("_faces", self._anny.faces.long(), persistent=False)
         J = self.n_bones
         V = self._anny.template_vertices.shape[0]
-        w = torch.zeros(V, J, dtype=torch.float64)
+        w = torch.zeros(V, J, dtype=torch.float64, device=dev)
         w.scatter_add_(1, self._anny.vertex_bone_indices.long(), self._anny.vertex_bone_weights)
-        self._weights = (w / w.sum(1, keepdim=True)).float()
+        self.register_buffer("_weights", (w / w.sum(1, keepdim=True)).float(), persistent=False)
         self._cache: dict[tuple, dict] = {}
+        self._last: tuple[Tensor | None, list[float]] = (None, [])
+
+    def _apply(self, fn, *args, **kwargs):
+        self._cache = {}  # rest data lives on the old device: rebuilt on demand
+        self._last = (None, [])
+        return super()._apply(fn, *args, **kwargs)
 
     # -- shape-dependent rest data, cached per shape ----------------------------------
+    def _shape_values(self, shape: Tensor) -> list[float]:
+        # The human branch passes the same constant buffer at every call: its values are
+        # remembered, so posing costs no device-to-host read of the shape.
+        if shape is self._last[0]:
+            return self._last[1]
+        values = [float(s) for s in shape.detach().cpu().float().reshape(-1)]
+        self._last = (shape, values)
+        return values
+
     def _rest(self, shape: Tensor | None) -> dict:
-        shape = self.default_shape if shape is None else shape.detach().cpu().float().reshape(-1)
-        key = tuple(round(float(s), 6) for s in shape)
+        values = self._shape_values(self.default_shape if shape is None else shape)
+        key = tuple(round(s, 6) for s in values)
         if key not in self._cache:
-            pheno = {n: torch.tensor([float(s)], dtype=torch.float64) for n, s in zip(self.shape_names, shape)}
-            eye = torch.eye(4, dtype=torch.float64).expand(1, self.n_bones, 4, 4).clone()
+            dev = self._weights.device
+            pheno = {n: torch.tensor([s], dtype=torch.float64, device=dev) for n, s in zip(self.shape_names, values)}
+            eye = torch.eye(4, dtype=torch.float64, device=dev).expand(1, self.n_bones, 4, 4).clone()
             with torch.no_grad():
                 out = self._anny(pose_parameters=eye, phenotype_kwargs=pheno)
             rest_bone_poses = out["rest_bone_poses"]

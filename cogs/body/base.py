@@ -52,6 +52,12 @@ class BodyModel(torch.nn.Module):
     def n_bones(self) -> int:
         return len(self.bone_names)
 
+    @property
+    def device(self) -> torch.device:
+        """Where its constants live (`.to(device)` moves them); outputs follow the inputs'."""
+        buf = next(self.buffers(), None)
+        return buf.device if buf is not None else torch.device("cpu")
+
     def bone_index(self, name: str) -> int:
         try:
             return self.bone_names.index(name)
@@ -72,7 +78,7 @@ class BodyModel(torch.nn.Module):
 
     # -- shared --------------------------------------------------------------------
     def zero_pose(self, batch: int = 1) -> tuple[Tensor, Tensor]:
-        return torch.zeros(batch, self.n_bones, 3), torch.zeros(batch, 3)
+        return torch.zeros(batch, self.n_bones, 3, device=self.device), torch.zeros(batch, 3, device=self.device)
 
     def posed_vertices(self, pose: Tensor, transl: Tensor, shape: Tensor | None = None) -> Tensor:
         """[B, V, 3] skinned mesh vertices (the same LBS the human branch applies)."""

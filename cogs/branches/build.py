@@ -1,4 +1,9 @@
-"""Build the three initialised branches from a native scene's inputs (no ground truth)."""
+"""Build the initialised branches from a native scene's inputs (no ground truth).
+
+Initialisation runs on the host (the same seeds and colours whatever device trains);
+`Model.to(device)` moves the result. The ablation variants of the seeds (CoGS Table:
+"no human prior seed", "no object seed") are initialisations too and live here.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +14,7 @@ import numpy as np
 import torch
 
 from cogs.body import load_body_model
-from cogs.branches.gaussians import GaussianSet
+from cogs.branches.gaussians import GaussianSet, rgb_to_sh0
 from cogs.branches.human import HumanBranch, HumanConfig, HumanSeed, sample_human_seed
 from cogs.branches.object import ObjectBranch, ObjectConfig, carve_visual_hull, fit_initial_trajectory
 from cogs.branches.scene import SceneBranch, SceneConfig
@@ -19,6 +24,8 @@ from cogs.geometry.rotations import quat_to_rotmat, rotmat_from_two_vectors, rot
 from cogs.geometry.splines import sample_trajectory
 
 log = logging.getLogger(__name__)
+
+CPU = torch.device("cpu")
 
 
 @dataclass
@@ -38,63 +45,90 @@ def _frames_for_color(train: list[int], n: int) -> list[int]:
     return [train[i] for i in idx]
 
 
-def _accumulate_colors(n: int, per_frame) -> tuple[torch.Tensor, torch.Tensor]:
-    num = torch.zeros(n, 3)
-    den = torch.zeros(n)
+def _host(a: np.ndarray, dtype=torch.float32) -> torch.Tensor:
+    return torch.as_tensor(np.asarray(a), dtype=dtype, device=CPU)
+
+
+def _frame_tensors(scene: Scene, frames: list[int], masks: np.ndarray):
+    """Images [F, H, W, 3] in [0, 1], mask weights [F, H, W], cameras of `frames`."""
+    images = torch.from_numpy(np.ascontiguousarray(scene.images[frames])).float() / 255.0
+    weight = torch.from_numpy(np.ascontiguousarray(masks[frames])).float()
+    w2c = _host(scene.cameras.world_to_camera[frames])
+    Ks = _host(scene.cameras.K[frames])
+    return images, weight, w2c, Ks
+
+
+def _colors_from_frames(n: int, per_frame, images: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """[n, 3] weight-averaged colours from the splat-back statistics of each frame; the
+    masks' mean colour where a Gaussian was never seen."""
+    num = torch.zeros(n, 3, device=CPU)
+    den = torch.zeros(n, device=CPU)
     for vis, col in per_frame:
         num += col
         den += vis
-    return num, den
-
-
-def _resolve(num: torch.Tensor, den: torch.Tensor, fallback: torch.Tensor) -> torch.Tensor:
+    mean_col = (images * weight[..., None]).sum((0, 1, 2)) / weight.sum().clamp_min(1)
     ok = den > 1e-3
-    out = fallback.expand(len(den), 3).clone()
+    out = mean_col.expand(len(den), 3).clone()
     out[ok] = (num[ok] / den[ok, None]).clamp(0, 1)
-    return out
+    return out, float((den > 1e-3).float().mean())
 
 
-def build_human(scene: Scene, cfg: BranchesConfig, backend: str = "auto", seed: HumanSeed | None = None) -> HumanBranch:
+def build_human(scene: Scene, cfg: BranchesConfig, backend: str = "auto", random_seed: bool = False) -> HumanBranch:
+    """The human seed on the canonical body surface (or, `random_seed`, the ablation's
+    cloud in the body's box), coloured from the frames by splatting back."""
     body = load_body_model(scene.body.model)
-    shape = torch.as_tensor(scene.body.shape, dtype=torch.float32)
-    if seed is None:
-        seed = sample_human_seed(body, shape, cfg.human, seed=cfg.seed)
-    human = HumanBranch(
-        body, shape, seed,
-        torch.as_tensor(scene.body.pose), torch.as_tensor(scene.body.transl), cfg.human,
-        train_frames=list(scene.split["train"]),
-    )
-    images = torch.as_tensor(scene.images).float() / 255.0
+    shape = _host(scene.body.shape)
+    seed = random_human_seed(body, shape, cfg) if random_seed else sample_human_seed(body, shape, cfg.human, seed=cfg.seed)
+    human = HumanBranch(body, shape, seed, _host(scene.body.pose), _host(scene.body.transl), cfg.human,
+                        train_frames=list(scene.split["train"]))
     frames = _frames_for_color(scene.split["train"], cfg.color_init_frames)
-    w2c = torch.as_tensor(scene.cameras.world_to_camera, dtype=torch.float32)
-    Ks = torch.as_tensor(scene.cameras.K, dtype=torch.float32)
-    weight = torch.as_tensor(scene.human_masks & ~scene.object_masks).float()
+    images, weight, w2c, Ks = _frame_tensors(scene, frames, scene.human_masks & ~scene.object_masks)
 
     def stats():
         with torch.no_grad():
             state = human.decode()
-        for t in frames:
+        for i, t in enumerate(frames):
             with torch.no_grad():
                 p = human.posed_frame(t, state)
-            vis, col, _ = splat_statistics(p.means, p.quats, p.scales, p.opacities, w2c[t], Ks[t],
-                                           scene.width, scene.height, weight[t], images[t], backend)
+            vis, col, _ = splat_statistics(p.means, p.quats, p.scales, p.opacities, w2c[i], Ks[i],
+                                           scene.width, scene.height, weight[i], images[i], backend)
             yield vis, col
 
-    num, den = _accumulate_colors(len(human), stats())
-    mean_col = (images[frames] * weight[frames, ..., None]).sum((0, 1, 2)) / weight[frames].sum().clamp_min(1)
-    human.seed_colors.copy_(_resolve(num, den, mean_col))
-    log.info("human: %d seed Gaussians, %.0f%% coloured from the frames", len(human), 100 * float((den > 1e-3).float().mean()))
+    colors, seen = _colors_from_frames(len(human), stats(), images, weight)
+    human.seed_colors.copy_(colors)
+    log.info("human: %d seed Gaussians, %.0f%% coloured from the frames", len(human), 100 * seen)
     return human
 
 
-def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto") -> ObjectBranch | None:
+def random_human_seed(body, shape: torch.Tensor, cfg: BranchesConfig) -> HumanSeed:
+    """Ablation "no human prior seed": the same number of Gaussians spread uniformly in the
+    canonical body's bounding box, isotropic, with nearest-vertex skinning weights."""
+    can = body.canonical(shape)
+    n = cfg.human.n_gaussians
+    lo, hi = can.vertices.min(0).values, can.vertices.max(0).values
+    g = torch.Generator(device=CPU).manual_seed(cfg.seed)
+    means = lo + (hi - lo) * torch.rand(n, 3, generator=g, device=CPU)
+    nearest = torch.cdist(means, can.vertices).argmin(1)
+    spacing = float(((hi - lo).prod() / n) ** (1 / 3))
+    quats = torch.zeros(n, 4, device=CPU)
+    quats[:, 0] = 1
+    return HumanSeed(means=means, quats=quats, scales=torch.full((n, 3), 0.5 * spacing, device=CPU),
+                     opacities=torch.full((n,), 0.1, device=CPU), colors=torch.full((n, 3), 0.5, device=CPU),
+                     weights=can.weights[nearest].clone(), normals=torch.zeros(n, 3, device=CPU))
+
+
+def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto",
+                 randomise: torch.Generator | None = None) -> ObjectBranch | None:
+    """Keyframes fitted to the initial poses and Gaussians on the voted visual hull,
+    coloured from the frames; with `randomise` (a generator), the ablation's random cloud
+    round the centre instead of the hull. None when the scene has no object."""
     if not scene.has_object:
         return None
     ocfg = cfg.object
-    prior_t = torch.as_tensor(scene.object.translations, dtype=torch.float64)
-    prior_q = torch.as_tensor(scene.object.quats, dtype=torch.float64)
+    prior_t = _host(scene.object.translations, torch.float64)
+    prior_q = _host(scene.object.quats, torch.float64)
     key_times, p, v, q = fit_initial_trajectory(prior_t, prior_q, ocfg)
-    tau = torch.arange(scene.n_frames, dtype=torch.float64)
+    tau = torch.arange(scene.n_frames, dtype=torch.float64, device=CPU)
     tr, qs = sample_trajectory(key_times, p, v, q, tau)
     R = quat_to_rotmat(qs).numpy()
     centre = np.asarray(scene.object.centre, dtype=np.float64)
@@ -114,36 +148,44 @@ def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto") -> Ob
         keep = rng.choice(len(pts), ocfg.max_gaussians, replace=False)
         pts, normals = pts[keep], normals[keep]
     pts = pts + rng.uniform(-0.25, 0.25, pts.shape) * voxel
-    xyz = torch.as_tensor(pts, dtype=torch.float32)
-    n = torch.as_tensor(normals, dtype=torch.float32)
-    quats = rotmat_to_quat(rotmat_from_two_vectors(torch.tensor([0.0, 0.0, 1.0]).expand_as(n), n))
-    scales = torch.tensor([0.7, 0.7, 0.25]) * voxel
+    xyz = _host(pts)
+    n = _host(normals)
+    quats = rotmat_to_quat(rotmat_from_two_vectors(torch.tensor([0.0, 0.0, 1.0], device=CPU).expand_as(n), n))
+    scales = torch.tensor([0.7, 0.7, 0.25], device=CPU) * voxel
     g = GaussianSet.from_points(xyz, torch.full_like(xyz, 0.5), scales.expand(len(xyz), 3).clone(),
                                 opacity=ocfg.init_opacity, quats=quats, sh_degree=ocfg.sh_degree)
-    obj = ObjectBranch(g, torch.as_tensor(centre), key_times, p, v, q, prior_t, prior_q, ocfg)
+    obj = ObjectBranch(g, _host(centre, torch.float64), key_times, p, v, q, prior_t, prior_q, ocfg)
 
-    images = torch.as_tensor(scene.images).float() / 255.0
     frames = _frames_for_color(train, cfg.color_init_frames)
-    w2c = torch.as_tensor(scene.cameras.world_to_camera, dtype=torch.float32)
-    Ks = torch.as_tensor(scene.cameras.K, dtype=torch.float32)
-    weight = torch.as_tensor(scene.object_masks).float()
+    images, weight, w2c, Ks = _frame_tensors(scene, frames, scene.object_masks)
 
     def stats():
-        for t in frames:
+        for i, t in enumerate(frames):
             with torch.no_grad():
                 tt, qq = obj.frame_pose(t)
                 means, quats = obj.posed(tt, qq)
-            vis, col, _ = splat_statistics(means, quats, g.scales, g.opacities, w2c[t], Ks[t],
-                                           scene.width, scene.height, weight[t], images[t], backend)
+            vis, col, _ = splat_statistics(means, quats, g.scales, g.opacities, w2c[i], Ks[i],
+                                           scene.width, scene.height, weight[i], images[i], backend)
             yield vis, col
 
-    num, den = _accumulate_colors(len(obj), stats())
-    mean_col = (images[frames] * weight[frames, ..., None]).sum((0, 1, 2)) / weight[frames].sum().clamp_min(1)
-    rgb = _resolve(num, den, mean_col)
+    rgb, _ = _colors_from_frames(len(obj), stats(), images, weight)
     with torch.no_grad():
-        g.params["sh0"].copy_(((rgb - 0.5) / 0.28209479177387814)[:, None, :])
+        g.params["sh0"].copy_(rgb_to_sh0(rgb))
     log.info("object: %d Gaussians on a visual hull (voxel %.1f cm), %d keyframes", len(obj), 100 * voxel, len(key_times))
+    if randomise is not None:
+        _randomise_object(obj, randomise)
     return obj
+
+
+def _randomise_object(obj: ObjectBranch, gen: torch.Generator) -> None:
+    """Ablation "no object seed": a random cloud of the same size around the centre."""
+    with torch.no_grad():
+        m = obj.gaussians.params["means"]
+        r = float((m - obj.centre).norm(dim=1).max())
+        d = torch.randn(m.shape, generator=gen, device=gen.device).to(m.device)
+        u = torch.rand(len(m), 1, generator=gen, device=gen.device).to(m.device)
+        m.copy_(obj.centre + r * d / d.norm(dim=1, keepdim=True) * u ** (1 / 3))
+        obj.gaussians.params["sh0"].zero_()
 
 
 def build_scene(scene: Scene, cfg: BranchesConfig) -> SceneBranch:
@@ -152,12 +194,6 @@ def build_scene(scene: Scene, cfg: BranchesConfig) -> SceneBranch:
         from cogs.geometry.planes import Plane
 
         planes = [Plane(np.asarray(p.normal, np.float64), float(p.offset), np.zeros(0, np.int64)) for p in scene.planes]
-    sb = SceneBranch.from_points(scene.points_xyz, scene.points_rgb, cfg.scene, planes)
+    sb = SceneBranch.from_points(scene.points_xyz, scene.points_rgb, cfg.scene, planes, device=CPU)
     log.info("scene: %d Gaussians from sparse points, %d planes", len(sb), len(sb.planes))
     return sb
-
-
-def build_branches(scene: Scene, cfg: BranchesConfig | None = None, backend: str = "auto"):
-    """(human, object or None, scene) initialised from the scene's inputs."""
-    cfg = cfg or BranchesConfig()
-    return build_human(scene, cfg, backend), build_object(scene, cfg, backend), build_scene(scene, cfg)

@@ -75,9 +75,9 @@ class GaussianSet(torch.nn.Module):
         if scales.ndim == 1:
             scales = scales[:, None].expand(n, 3)
         if quats is None:
-            quats = torch.zeros(n, 4)
+            quats = xyz.new_zeros(n, 4)
             quats[:, 0] = 1.0
-        op = opacity if isinstance(opacity, Tensor) else torch.full((n,), float(opacity))
+        op = opacity if isinstance(opacity, Tensor) else xyz.new_full((n,), float(opacity))
         params = {
             "means": xyz.float(),
             "quats": quats.float(),
@@ -87,13 +87,16 @@ class GaussianSet(torch.nn.Module):
         }
         K = num_sh_bases(sh_degree)
         if K > 1:
-            params["shN"] = torch.zeros(n, K - 1, 3)
+            params["shN"] = xyz.new_zeros(n, K - 1, 3, dtype=torch.float32)
         return cls(params, sh_degree)
 
     @classmethod
-    def empty(cls, sh_degree: int = 0) -> "GaussianSet":
-        z = torch.zeros(0, 3)
-        return cls.from_points(z, z, z, sh_degree=sh_degree)
+    def from_state(cls, state: dict[str, Tensor], prefix: str = "params.") -> "GaussianSet":
+        """A set rebuilt from a state dict's `params.*` entries (its size and SH degree read
+        from their shapes)."""
+        params = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
+        degree = int(round((params["shN"].shape[1] + 1) ** 0.5)) - 1 if "shN" in params else 0
+        return cls(params, degree)
 
     # -- views ------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -140,8 +143,9 @@ class GaussianSet(torch.nn.Module):
             for k in ("means", "quats", "scales", "opacities", "sh0"):
                 out[k].append(s.params[k].detach())
             if K > 1:
-                rest = s.params["shN"].detach() if "shN" in s.params else torch.zeros(len(s), 0, 3)
-                pad = torch.zeros(len(s), K - 1 - rest.shape[1], 3)
+                sh0 = s.params["sh0"]
+                rest = s.params["shN"].detach() if "shN" in s.params else sh0.new_zeros(len(s), 0, 3)
+                pad = sh0.new_zeros(len(s), K - 1 - rest.shape[1], 3)
                 out["shN"].append(torch.cat([rest, pad], dim=1))
         return GaussianSet({k: torch.cat(v) for k, v in out.items() if v}, degree)
 
@@ -190,3 +194,30 @@ class GaussianSet(torch.nn.Module):
             rest = col(*[f"f_rest_{i}" for i in range(n_rest)]).reshape(-1, 3, n_rest // 3)
             params["shN"] = torch.from_numpy(rest.transpose(0, 2, 1).copy())
         return cls(params, degree)
+
+
+def set_param_groups(g: GaussianSet, lr, prefix: str, means_scale: float) -> list[dict]:
+    """Optimizer groups of a plain set, named as its parameters, with the learning rates
+    `lr.<prefix>_<name>` (the means' times `means_scale`; higher SH bands `lr.scene_shN`)."""
+    p = g.params
+    groups = [
+        {"params": [p["means"]], "lr": getattr(lr, f"{prefix}_means") * means_scale, "name": "means"},
+        {"params": [p["sh0"]], "lr": getattr(lr, f"{prefix}_sh0"), "name": "sh0"},
+        {"params": [p["opacities"]], "lr": getattr(lr, f"{prefix}_opacities"), "name": "opacities"},
+        {"params": [p["scales"]], "lr": getattr(lr, f"{prefix}_scales"), "name": "scales"},
+        {"params": [p["quats"]], "lr": getattr(lr, f"{prefix}_quats"), "name": "quats"},
+    ]
+    if "shN" in p:
+        groups.append({"params": [p["shN"]], "lr": lr.scene_shN, "name": "shN"})
+    return groups
+
+
+@torch.no_grad()
+def guard_set(g: GaussianSet, extent: float) -> None:
+    """After an optimizer step: log-scales clamped to [1e-5 m, half the extent], zero
+    quaternions (no rotation) repaired to the identity, without a device sync."""
+    p = g.params
+    p["scales"].clamp_(max=float(np.log(0.5 * extent + 1e-6)), min=float(np.log(1e-5)))
+    q = p["quats"]
+    bad = q.norm(dim=1, keepdim=True) < 1e-8
+    q.copy_(torch.where(bad, q.new_tensor([1.0, 0.0, 0.0, 0.0]), q))

@@ -17,7 +17,9 @@ Pieces (CoGS, with the field of HUGS):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -25,8 +27,10 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from cogs.body import BodyModel, lbs_gaussians
-from cogs.branches.gaussians import inverse_sigmoid
+from cogs.branches.base import Branch, Splats, register
+from cogs.branches.gaussians import GaussianSet, inverse_sigmoid, rgb_to_sh0
 from cogs.branches.shading import Irradiance
+from cogs.branches.surgery import SPLIT_SHRINK, BranchGaussians, Geometry
 from cogs.geometry.rotations import (
     axis_angle_to_quat,
     quat_geodesic_angle,
@@ -129,40 +133,46 @@ class HumanSeed:
     colors: Tensor  # [N, 3]
     weights: Tensor  # [N, J] skinning weights
     normals: Tensor  # [N, 3]
-    face_index: Tensor = field(default_factory=lambda: torch.zeros(0, dtype=torch.long))  # [N]
+    face_index: Tensor | None = None  # [N] the body triangle each was sampled on
 
 
 def sample_human_seed(body: BodyModel, shape: Tensor | None, cfg: HumanConfig, seed: int = 0) -> HumanSeed:
-    """Area-uniform samples on the canonical surface with barycentric skinning weights."""
+    """Area-uniform samples on the canonical surface with barycentric skinning weights.
+
+    Sampled on the host from a seeded generator (the same seed on every device), returned
+    on the body model's device."""
     can = body.canonical(shape)
-    V, Fc = can.vertices.double(), can.faces
+    dev = can.vertices.device
+    cpu = torch.device("cpu")
+    V, Fc = can.vertices.double().to(cpu), can.faces.to(cpu)
     a, b, c = V[Fc[:, 0]], V[Fc[:, 1]], V[Fc[:, 2]]
     cross = torch.linalg.cross(b - a, c - a, dim=-1)
     area = 0.5 * cross.norm(dim=-1)
-    g = torch.Generator().manual_seed(seed)
+    g = torch.Generator(device=cpu).manual_seed(seed)
     n = cfg.n_gaussians
     face = torch.multinomial(area / area.sum(), n, replacement=True, generator=g)
-    r1, r2 = torch.rand(n, generator=g, dtype=torch.float64), torch.rand(n, generator=g, dtype=torch.float64)
+    r1 = torch.rand(n, generator=g, dtype=torch.float64, device=cpu)
+    r2 = torch.rand(n, generator=g, dtype=torch.float64, device=cpu)
     s = r1.sqrt()
     bary = torch.stack([1 - s, s * (1 - r2), s * r2], dim=1)  # uniform on the triangle
     tri = Fc[face]
     normals = F.normalize(cross[face], dim=-1)
     means = (bary[:, :, None] * V[tri]).sum(1) - cfg.seed_inset_m * normals
-    weights = (bary[:, :, None] * can.weights.double()[tri]).sum(1)
+    weights = (bary[:, :, None] * can.weights.double().to(cpu)[tri]).sum(1)
     weights = weights / weights.sum(1, keepdim=True)
     spacing = float(torch.sqrt(area.sum() / n))
     tangent = cfg.seed_scale_factor * spacing
-    scales = torch.tensor([tangent, tangent, cfg.seed_thickness * tangent]).expand(n, 3)
-    R = rotmat_from_two_vectors(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(n, 3), normals)
+    scales = torch.tensor([tangent, tangent, cfg.seed_thickness * tangent], device=cpu).expand(n, 3)
+    R = rotmat_from_two_vectors(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64, device=cpu).expand(n, 3), normals)
     return HumanSeed(
-        means=means.float(),
-        quats=rotmat_to_quat(R).float(),
-        scales=scales.float().clone(),
-        opacities=torch.full((n,), cfg.seed_opacity),
-        colors=torch.full((n, 3), 0.5),
-        weights=weights.float(),
-        normals=normals.float(),
-        face_index=face,
+        means=means.float().to(dev),
+        quats=rotmat_to_quat(R).float().to(dev),
+        scales=scales.float().clone().to(dev),
+        opacities=torch.full((n,), cfg.seed_opacity, device=dev),
+        colors=torch.full((n, 3), 0.5, device=dev),
+        weights=weights.float().to(dev),
+        normals=normals.float().to(dev),
+        face_index=face.to(dev),
     )
 
 
@@ -174,10 +184,13 @@ class TriplaneField(torch.nn.Module):
         R, C, W = cfg.triplane_resolution, cfg.triplane_channels, cfg.mlp_width
         self.register_buffer("box_min", box_min.float().clone())
         self.register_buffer("box_max", box_max.float().clone())
-        self.planes = torch.nn.Parameter(0.1 * torch.randn(3, C, R, R, generator=torch.Generator().manual_seed(0)))
+        dev = box_min.device
+        cpu = torch.device("cpu")  # drawn on the host: the same planes on every device
+        planes = 0.1 * torch.randn(3, C, R, R, generator=torch.Generator(device=cpu).manual_seed(0), device=cpu)
+        self.planes = torch.nn.Parameter(planes.to(dev))
 
         def mlp(out: int) -> torch.nn.Sequential:
-            net = torch.nn.Sequential(torch.nn.Linear(3 * C, W), torch.nn.ReLU(), torch.nn.Linear(W, out))
+            net = torch.nn.Sequential(torch.nn.Linear(3 * C, W, device=dev), torch.nn.ReLU(), torch.nn.Linear(W, out, device=dev))
             torch.nn.init.zeros_(net[2].weight)
             torch.nn.init.zeros_(net[2].bias)
             return net
@@ -217,10 +230,12 @@ class HumanState:
     weights: Tensor  # [N, J]
 
 
-class HumanBranch(torch.nn.Module):
+@register
+class HumanBranch(Branch):
     """Canonical human Gaussians, their field, pose refinements and visibility."""
 
-    # Per-Gaussian tensors density control must gather together (name -> kind).
+    name = "human"
+    # Per-Gaussian tensors density control must gather together.
     PER_GAUSSIAN_PARAMS = ("means", "color_residual")
     PER_GAUSSIAN_BUFFERS = ("seed_means", "seed_quats", "seed_scales", "seed_opacities", "seed_colors", "seed_weights", "visibility")
 
@@ -235,6 +250,7 @@ class HumanBranch(torch.nn.Module):
         train_frames: list[int] | None = None,  # frames the training may fit (None: all)
     ):
         super().__init__()
+        dev = seed.means.device
         # Not registered as a submodule: the body model is shared, rebuilt from its name,
         # and must not enter checkpoints.
         object.__setattr__(self, "body", body)
@@ -248,28 +264,49 @@ class HumanBranch(torch.nn.Module):
         self.register_buffer("seed_opacities", seed.opacities.clone())
         self.register_buffer("seed_colors", seed.colors.clone())
         self.register_buffer("seed_weights", seed.weights.clone())
-        self.register_buffer("visibility", torch.zeros(len(seed.means)))
-        self.shading = Irradiance()
+        self.register_buffer("visibility", torch.zeros(len(seed.means), device=dev))
+        self.shading = Irradiance(device=dev)
         pad = cfg.triplane_padding_m
         self.field = TriplaneField(seed.means.min(0).values - pad, seed.means.max(0).values + pad, body.n_bones, cfg)
         T = base_pose.shape[0]
         self.register_buffer("base_pose", base_pose.float().clone())
         self.register_buffer("base_transl", base_transl.float().clone())
         K = max(2, int(np.ceil((T - 1) / cfg.pose_keyframe_every)) + 1)
-        self.register_buffer("pose_key_times", torch.linspace(0.0, float(T - 1), K))
-        major = torch.tensor([body.bone_index(b) for b in body.major_bones])
+        key_times = torch.linspace(0.0, float(T - 1), K, device="cpu")
+        # The pose keyframe times, also on the host: frame-time lookups need no device sync.
+        self._key_times = key_times.numpy()
+        self.register_buffer("pose_key_times", key_times.to(dev))
+        major = torch.tensor([body.bone_index(b) for b in body.major_bones], device=dev)
         self.register_buffer("refined_bones", major)
-        self.pose_delta = torch.nn.Parameter(torch.zeros(K, len(major), 3))
-        self.transl_delta = torch.nn.Parameter(torch.zeros(K, 3))
-        self.frame_pose_delta = torch.nn.Parameter(torch.zeros(T, len(major), 3))
-        self.frame_transl_delta = torch.nn.Parameter(torch.zeros(T, 3))
-        # Which frames are fitted: a plain attribute rebuilt from the scene's split whenever
-        # the branch is built, not state.
-        self.trained = torch.zeros(T, dtype=torch.bool)
-        self.trained[list(range(T)) if train_frames is None else list(train_frames)] = True
+        self.pose_delta = torch.nn.Parameter(torch.zeros(K, len(major), 3, device=dev))
+        self.transl_delta = torch.nn.Parameter(torch.zeros(K, 3, device=dev))
+        self.frame_pose_delta = torch.nn.Parameter(torch.zeros(T, len(major), 3, device=dev))
+        self.frame_transl_delta = torch.nn.Parameter(torch.zeros(T, 3, device=dev))
+        # Which frames the training fits (saved, so a loaded model poses held-out frames
+        # without its scene), and the same as a host list for per-frame decisions.
+        self._trained = [False] * T
+        for t in (range(T) if train_frames is None else train_frames):
+            self._trained[int(t)] = True
+        self.register_buffer("trained", torch.tensor(self._trained, dtype=torch.bool, device=dev))
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.base_pose.shape[0])
+
+    @classmethod
+    def from_state(cls, state: dict[str, Tensor], cfg, body=None) -> "HumanBranch":
+        """The branch rebuilt from a state dict (its `BranchesConfig` and body model given)."""
+        assert body is not None, "the human branch needs its body model"
+        seed = HumanSeed(means=state["seed_means"], quats=state["seed_quats"], scales=state["seed_scales"],
+                         opacities=state["seed_opacities"], colors=state["seed_colors"],
+                         weights=state["seed_weights"], normals=torch.zeros_like(state["seed_means"]))
+        train = torch.nonzero(state["trained"]).flatten().tolist()
+        human = cls(body, state["shape"], seed, state["base_pose"], state["base_transl"], cfg.human, train_frames=train)
+        human.load_state_dict(state)
+        return human
 
     # -- canonical attributes ----------------------------------------------------------
     def decode(self) -> HumanState:
@@ -284,6 +321,9 @@ class HumanBranch(torch.nn.Module):
         weights = torch.softmax(torch.log(self.seed_weights.clamp_min(1e-8)) + r["skinning"], dim=-1)
         return HumanState(self.means, quats, scales, opacities, colors.clamp(0.0, 1.0), weights)
 
+    def prepare(self) -> HumanState:
+        return self.decode()
+
     # -- pose --------------------------------------------------------------------------
     def frame_pose(self, t: float) -> tuple[Tensor, Tensor]:
         """Body pose [1, J, 3] and translation [1, 3] at frame t, corrections included.
@@ -294,7 +334,7 @@ class HumanBranch(torch.nn.Module):
         """
         if not self.cfg.refine_pose:
             return self.base_pose[t : t + 1], self.base_transl[t : t + 1]
-        if self.cfg.per_frame_pose and not bool(self.trained[t]):
+        if self.cfg.per_frame_pose and not self._trained[t]:
             return self.held_out_pose(t)
         dp, dt = self._refinement(float(t))
         if self.cfg.per_frame_pose:
@@ -318,16 +358,18 @@ class HumanBranch(torch.nn.Module):
         """
         from cogs.geometry.rotations import quat_conjugate, quat_to_axis_angle
 
-        nb = _lagrange_neighbours(t, self.trained, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
+        nb = _lagrange_neighbours(t, self._trained, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
         if nb is None:
             dp, dt = self._refinement(float(t))
             return self.base_pose[t : t + 1].index_add(1, self.refined_bones, dp), self.base_transl[t : t + 1] + dt
+        frames = torch.tensor(nb[0], device=self.base_pose.device)
+        weights = torch.tensor(nb[1], dtype=torch.float32, device=self.base_pose.device)
         quats, transl = self._fitted_poses()
-        q, tr = _blend(quats, transl, *nb)
+        q, tr = _blend(quats, transl, frames, weights)
         w = self.cfg.held_out_input_weight
         if w:
             q_in = quat_sign_continuous(axis_angle_to_quat(self.base_pose))
-            qi, ti = _blend(q_in, self.base_transl, *nb)
+            qi, ti = _blend(q_in, self.base_transl, frames, weights)
             detail = quat_to_axis_angle(quat_multiply(q_in[t], quat_conjugate(qi)))
             q = quat_multiply(axis_angle_to_quat(w * detail), q)
             tr = tr + w * (self.base_transl[t] - ti)
@@ -337,16 +379,15 @@ class HumanBranch(torch.nn.Module):
         """Every frame's bone rotations [T, J, 4] (wxyz, sign-continuous along time per
         bone) and translations [T, 3] as the training has them: input, smooth correction
         and per-frame residual (zero on frames never fitted)."""
-        T = self.base_pose.shape[0]
-        refs = [self._refinement(float(k)) for k in range(T)]
+        refs = [self._refinement(float(k)) for k in range(self.n_frames)]
         dp = torch.cat([r[0] for r in refs])
         dt = torch.cat([r[1] for r in refs])
         aa = self.base_pose.index_add(1, self.refined_bones, dp + self.frame_pose_delta)
         return quat_sign_continuous(axis_angle_to_quat(aa)), self.base_transl + dt + self.frame_transl_delta
 
     def _refinement(self, t: float) -> tuple[Tensor, Tensor]:
-        times = self.pose_key_times
-        k = int(torch.searchsorted(times, torch.tensor(t), right=True).clamp(1, len(times) - 1)) - 1
+        times = self._key_times  # float32, host: the same arithmetic as on the buffer, no sync
+        k = int(np.clip(np.searchsorted(times, np.float32(t), side="right"), 1, len(times) - 1)) - 1
         u = min(max((t - float(times[k])) / float(times[k + 1] - times[k]), 0.0), 1.0)
         return (
             (1 - u) * self.pose_delta[k : k + 1] + u * self.pose_delta[k + 1 : k + 2],
@@ -367,7 +408,44 @@ class HumanBranch(torch.nn.Module):
         pose, transl = self.frame_pose(t)
         return self.posed(pose, transl, state)
 
-    # -- losses --------------------------------------------------------------------------
+    def splats(self, frame: int, campos: Tensor, pose: tuple[Tensor, Tensor] | None = None,
+               prepared: HumanState | None = None) -> Splats:
+        """The posed human at `frame`, or in `pose` = (body pose [1, J, 3], translation [1, 3])."""
+        p = self.posed(*pose, prepared) if pose is not None else self.posed_frame(frame, prepared)
+        return Splats(p.means, p.quats, p.scales, p.opacities, p.colors)
+
+    # -- training ------------------------------------------------------------------------
+    def param_groups(self, lr, extent: float) -> list[dict]:
+        groups = [
+            {"params": [self.means], "lr": lr.human_means, "name": "means"},
+            {"params": [self.color_residual], "lr": lr.human_color, "name": "color"},
+            {"params": list(self.field.parameters()), "lr": lr.human_field, "name": "field"},
+            {"params": list(self.shading.parameters()), "lr": lr.shading, "name": "shading"},
+        ]
+        if self.cfg.refine_pose:
+            groups += [
+                {"params": [self.pose_delta, self.frame_pose_delta], "lr": lr.human_pose, "name": "pose"},
+                {"params": [self.transl_delta, self.frame_transl_delta], "lr": lr.human_transl, "name": "transl"},
+            ]
+        return groups
+
+    def density_adapter(self) -> "HumanGaussians":
+        return HumanGaussians(self)
+
+    def extent(self, scene_extent: float) -> float:
+        return 1.0  # metres: a body's size
+
+    def regularisers(self, weights, frames: Tensor, prepared: HumanState | None = None) -> dict[str, Tensor]:
+        """`anchor`: visibility-aware anchoring of the decoded state `prepared` to the seed;
+        `pose_reg`: the size of the pose corrections."""
+        terms = {}
+        if weights.get("anchor", 0) > 0:
+            terms["anchor"] = weights["anchor"] * self.anchor_loss(prepared, weights["anchor_scale"], weights["anchor_rotation"],
+                                                                   weights["anchor_opacity"])
+        if self.cfg.refine_pose and weights.get("pose_refine_reg", 0) > 0:
+            terms["pose_reg"] = weights["pose_refine_reg"] * self.pose_regularizer()
+        return terms
+
     def anchor_loss(self, state: HumanState, lambda_s: float = 1.0, lambda_q: float = 0.1, lambda_a: float = 0.1) -> Tensor:
         """CoGS visibility-aware anchoring, mean over Gaussians:
 
@@ -391,15 +469,59 @@ class HumanBranch(torch.nn.Module):
             reg = reg + 4.0 * (self.frame_pose_delta.square().sum((1, 2)).mean() + self.frame_transl_delta.square().sum(1).mean())
         return reg
 
+    # -- outputs -------------------------------------------------------------------------
+    @torch.no_grad()
+    def canonical_set(self) -> GaussianSet:
+        """The decoded canonical human as a plain GaussianSet (raw parameters)."""
+        st = self.decode()
+        return GaussianSet({
+            "means": st.means, "quats": st.quats, "scales": torch.log(st.scales),
+            "opacities": inverse_sigmoid(st.opacities), "sh0": rgb_to_sh0(st.colors),
+        }, 0)
 
-def _lagrange_neighbours(t: int, trained: Tensor, per_side: int, max_gap: int) -> tuple[Tensor, Tensor] | None:
+    def export(self, folder: Path, n_frames: int) -> list[Path]:
+        """The canonical Gaussians (3DGS PLY) and every frame's refined body pose."""
+        ply, npz = folder / "human_canonical.ply", folder / "body_refined.npz"
+        self.canonical_set().save_ply(ply)
+        with torch.no_grad():
+            poses = [self.frame_pose(t) for t in range(n_frames)]
+        np.savez_compressed(npz, pose=torch.cat([p for p, _ in poses]).cpu().numpy(),
+                            transl=torch.cat([t for _, t in poses]).cpu().numpy())
+        return [ply, npz]
+
+
+class HumanGaussians(BranchGaussians):
+    """Density adapter of the human: its free positions and colour residuals with the seed
+    buffers beside them; geometry decoded from the field."""
+
+    def __init__(self, human: HumanBranch):
+        super().__init__(human, {k: (human, k) for k in HumanBranch.PER_GAUSSIAN_PARAMS}, HumanBranch.PER_GAUSSIAN_BUFFERS)
+        self.human = human
+
+    def geometry(self) -> Geometry:
+        with torch.no_grad():
+            st = self.human.decode()
+        return Geometry(st.means.detach(), st.scales.detach(), st.quats.detach(), st.opacities.detach())
+
+    def split_children(self, sel: Tensor, offsets: Tensor) -> dict[str, Tensor]:
+        h = self.human
+        rep = lambda t: t.detach()[sel].repeat(2, *([1] * (t.dim() - 1)))  # noqa: E731
+        out = {"means": rep(h.means) + offsets, "color_residual": rep(h.color_residual)}
+        for name in self.buffers:
+            out[name] = rep(getattr(h, name))
+        out["seed_means"] = out["seed_means"] + offsets  # the prior moves with the child
+        out["seed_scales"] = out["seed_scales"] / SPLIT_SHRINK
+        return out
+
+
+def _lagrange_neighbours(t: int, trained: list[bool], per_side: int, max_gap: int) -> tuple[list[int], list[float]] | None:
     """(frames [n], weights [n]) interpolating frame t from the nearest trained frames on
     each side (up to `per_side` each, at most `max_gap` away; the same number on both
     sides): the Lagrange polynomial through them evaluated at t. None without a trained
     frame on both sides."""
-    T = trained.shape[0]
-    before = [k for k in range(t - 1, max(t - max_gap, 0) - 1, -1) if bool(trained[k])][:per_side]
-    after = [k for k in range(t + 1, min(t + max_gap, T - 1) + 1) if bool(trained[k])][:per_side]
+    T = len(trained)
+    before = [k for k in range(t - 1, max(t - max_gap, 0) - 1, -1) if trained[k]][:per_side]
+    after = [k for k in range(t + 1, min(t + max_gap, T - 1) + 1) if trained[k]][:per_side]
     n = min(len(before), len(after))
     if n == 0:
         return None
@@ -411,7 +533,7 @@ def _lagrange_neighbours(t: int, trained: Tensor, per_side: int, max_gap: int) -
             if j != i:
                 li *= (t - xj) / (xi - xj)
         w.append(li)
-    return torch.tensor(xs), torch.tensor(w, dtype=torch.float32)
+    return xs, w
 
 
 def _blend(quats: Tensor, transl: Tensor, frames: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
@@ -425,12 +547,11 @@ def visibility_indicator(
     contribution: Tensor,  # [N] summed compositing weight inside (human mask & not object mask)
     means2d: Tensor,  # [N, 2] pixel coordinates of the posed centres
     depth_ok: Tensor,  # [N] bool, in front of the camera
-    mask: np.ndarray | Tensor,  # [H, W] bool: human mask and not object mask
+    mask: Tensor,  # [H, W] bool: human mask and not object mask
     epsilon: float,
 ) -> Tensor:
     """chi_it for one frame: inside the human mask, outside the object mask, and a human
     opacity contribution above epsilon."""
-    mask = torch.as_tensor(mask, dtype=torch.bool)
     H, W = mask.shape
     px = means2d.detach().floor().long()
     inside = (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H) & depth_ok
@@ -446,8 +567,7 @@ def compute_visibility(
     Ks: Tensor,  # [T, 3, 3]
     width: int,
     height: int,
-    human_masks: np.ndarray,  # [T, H, W] bool
-    object_masks: np.ndarray,  # [T, H, W] bool
+    person_mask: Callable[[int], Tensor],  # t -> [H, W] bool: human mask and not object mask
     backend: str = "auto",
 ) -> Tensor:
     """v_i = (1/|T|) sum_t chi_it over the given training frames (CoGS Sec. visibility),
@@ -460,11 +580,11 @@ def compute_visibility(
 
     with torch.no_grad():
         state = human.decode()
-    counts = torch.zeros(len(human))
+    counts = torch.zeros(len(human), device=human.means.device)
     for t in frames:
         with torch.no_grad():
             posed = human.posed_frame(t, state)
-        mask = torch.as_tensor(human_masks[t] & ~object_masks[t])
+        mask = person_mask(t)
         contrib, _, means2d = splat_statistics(
             posed.means, posed.quats, posed.scales, posed.opacities, viewmats[t], Ks[t],
             width, height, weight=mask.float(), backend=backend,

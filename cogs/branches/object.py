@@ -17,14 +17,18 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from cogs.branches.gaussians import GaussianSet
+from cogs.branches.base import Branch, Splats, register
+from cogs.branches.gaussians import GaussianSet, guard_set, set_param_groups
 from cogs.branches.shading import Irradiance
+from cogs.branches.surgery import SetGaussians
 from cogs.geometry.rotations import quat_geodesic_angle, quat_multiply, quat_normalize, quat_to_rotmat
+from cogs.render.sh import sh_to_color
 from cogs.geometry.splines import (
     acceleration_penalty,
     fit_keyframes,
@@ -63,7 +67,10 @@ class ObjectConfig:
     """Shortest run of frames that counts as a rest."""
 
 
-class ObjectBranch(torch.nn.Module):
+@register
+class ObjectBranch(Branch):
+    name = "object"
+
     def __init__(
         self,
         gaussians: GaussianSet,
@@ -75,6 +82,8 @@ class ObjectBranch(torch.nn.Module):
         prior_t: Tensor,  # [T, 3] initial per-frame translations
         prior_q: Tensor,  # [T, 4]
         cfg: ObjectConfig,
+        size: float | None = None,
+        rest: Tensor | None = None,  # [T] bool
     ):
         super().__init__()
         self.cfg = cfg
@@ -86,12 +95,19 @@ class ObjectBranch(torch.nn.Module):
         self.key_q = torch.nn.Parameter(q.float().clone())
         self.register_buffer("prior_t", prior_t.float().clone())
         self.register_buffer("prior_q", quat_normalize(prior_q.float()).clone())
-        self.shading = Irradiance()
-        # Derived from the prior and the initial Gaussians (not state: a resumed run
-        # rebuilds the branch the same way before loading its tensors).
-        self.size = object_size(gaussians.means.detach(), centre)
-        self.rest = rest_frames(self.prior_t, self.size, cfg.rest_speed, min_run=cfg.rest_min_frames)
-        if bool(self.rest.any()):
+        self.shading = Irradiance(device=centre.device)
+        # Measured on the initial Gaussians and trajectory, then kept: the object's size
+        # (metres) and the frames where the initial trajectory rests.
+        size = object_size(gaussians.means.detach(), centre) if size is None else float(size)
+        if rest is None:
+            rest = rest_frames(self.prior_t, size, cfg.rest_speed, min_run=cfg.rest_min_frames)
+        self.register_buffer("size", torch.tensor(size, dtype=torch.float64, device=centre.device))
+        self.register_buffer("rest", rest.to(device=centre.device, dtype=torch.bool).clone())
+        # Consecutive frames both at rest, as indices (fixed; gathered without a device sync).
+        pairs = torch.nonzero(self.rest[:-1] & self.rest[1:]).flatten()
+        self._has_rest = bool(len(pairs))
+        self.register_buffer("rest_pairs", pairs, persistent=False)
+        if self._has_rest:
             log.info("object: at rest in %d of %d frames (initial trajectory)", int(self.rest.sum()), len(self.rest))
 
     def __len__(self) -> int:
@@ -101,13 +117,21 @@ class ObjectBranch(torch.nn.Module):
     def n_frames(self) -> int:
         return int(self.prior_t.shape[0])
 
+    @classmethod
+    def from_state(cls, state: dict[str, Tensor], cfg, body=None) -> "ObjectBranch":
+        g = GaussianSet.from_state(state, "gaussians.params.")
+        obj = cls(g, state["centre"], state["key_times"], state["key_p"], state["key_v"], state["key_q"],
+                  state["prior_t"], state["prior_q"], cfg.object, size=float(state["size"]), rest=state["rest"])
+        obj.load_state_dict(state)
+        return obj
+
     # -- trajectory ----------------------------------------------------------------------
     def pose(self, tau: Tensor) -> tuple[Tensor, Tensor]:
         """(translation [T, 3], unit quaternion [T, 4]) at frame times tau [T]."""
         return sample_trajectory(self.key_times, self.key_p, self.key_v, quat_normalize(self.key_q), tau.float())
 
     def frame_pose(self, t: int) -> tuple[Tensor, Tensor]:
-        tr, q = self.pose(torch.tensor([float(t)]))
+        tr, q = self.pose(torch.tensor([float(t)], device=self.centre.device))
         return tr[0], q[0]
 
     def posed(self, translation: Tensor, quat: Tensor) -> tuple[Tensor, Tensor]:
@@ -117,35 +141,97 @@ class ObjectBranch(torch.nn.Module):
         quats = quat_multiply(quat_normalize(quat).expand(len(self), 4), self.gaussians.quats)
         return means, quats
 
-    # -- losses --------------------------------------------------------------------------
-    def pose_prior_loss(self, frames: Tensor, lambda_R: float = 1.0) -> Tensor:
-        """mean_t |t_t - t̄_t|_1 + lambda_R d_R(q_t, q̄_t) over the given frames."""
-        tr, q = self.pose(frames.float())
-        idx = frames.long()
-        return (tr - self.prior_t[idx]).abs().sum(-1).mean() + lambda_R * quat_geodesic_angle(q, self.prior_q[idx]).mean()
+    def splats(self, frame: int, campos: Tensor, pose: tuple[Tensor, Tensor] | None = None, prepared=None) -> Splats:
+        """The object at `frame` on its trajectory, or at `pose` = (translation [3], quat [4])."""
+        translation, quat = pose if pose is not None else self.frame_pose(frame)
+        means, quats = self.posed(translation, quat)
+        g = self.gaussians
+        # View-dependent colour is defined in the object's own frame: rotate the view ray back.
+        if g.sh_degree > 0:
+            rgb = sh_to_color(g.sh_degree, (means - campos) @ quat_to_rotmat(quat), g.sh)
+        else:
+            rgb = g.rgb
+        if self.cfg.shading:
+            rgb = rgb * self.shading(quat_to_rotmat(quats)[:, :, 2])
+        return Splats(means, quats, g.scales, g.opacities, rgb)
 
-    def rotation_prior_loss(self, frames: Tensor) -> Tensor:
-        _, q = self.pose(frames.float())
-        return quat_geodesic_angle(q, self.prior_q[frames.long()]).mean()
+    # -- training ------------------------------------------------------------------------
+    def param_groups(self, lr, extent: float) -> list[dict]:
+        return set_param_groups(self.gaussians, lr, "object", 1.0) + [
+            {"params": list(self.shading.parameters()), "lr": lr.shading, "name": "shading"},
+            {"params": [self.key_p, self.key_v], "lr": lr.object_trajectory, "name": "trajectory"},
+            {"params": [self.key_q], "lr": lr.object_rotation, "name": "rotation"},
+        ]
+
+    def density_adapter(self) -> SetGaussians:
+        return SetGaussians(self.gaussians)
+
+    def extent(self, scene_extent: float) -> float:
+        """The Gaussians' largest distance from their mean (>= 5 cm)."""
+        m = self.gaussians.means.detach()
+        return max(float((m - m.mean(0)).norm(dim=1).max()), 0.05)
+
+    def guard(self, extent: float) -> None:
+        guard_set(self.gaussians, extent)
+        with torch.no_grad():
+            q = self.key_q
+            q.copy_(q / q.norm(dim=1, keepdim=True).clamp_min(1e-8))
+
+    def regularisers(self, weights, frames: Tensor, prepared=None) -> dict[str, Tensor]:
+        """The motion terms present in `weights`: the pose prior over the training `frames`
+        (translation L1 + lambda_R geodesic), acceleration and rotation smoothness of the
+        trajectory, and stillness where the initial trajectory rests."""
+        if "pose_prior" not in weights:
+            return {}
+        terms = {}
+        tr, q = self.pose(frames.float())
+        terms["prior_translation"] = weights["pose_prior"] * (tr - self.prior_t[frames]).abs().sum(-1).mean()
+        terms["prior_rotation"] = weights["pose_prior_rotation"] * quat_geodesic_angle(q, self.prior_q[frames]).mean()
+        acc, rot = self.smoothness_losses()
+        terms["acceleration"] = weights["acceleration"] * acc
+        if "rotation_smoothness" in weights:
+            terms["rotation_smoothness"] = weights["rotation_smoothness"] * rot
+        if weights.get("rest_translation", 0) > 0 or weights.get("rest_rotation", 0) > 0:
+            rest_t, rest_q = self.rest_losses()
+            terms["rest_translation"] = weights["rest_translation"] * rest_t
+            terms["rest_rotation"] = weights["rest_rotation"] * rest_q
+        return terms
 
     def rest_losses(self) -> tuple[Tensor, Tensor]:
         """(translation m, rotation rad): mean change between consecutive frames that are
         both at rest; zero (with a graph) when there is no rest."""
-        pair = self.rest[:-1] & self.rest[1:]
-        tr, q = self.pose(torch.arange(self.n_frames, dtype=torch.float32))
-        if not bool(pair.any()):
+        tr, q = self.pose(torch.arange(self.n_frames, dtype=torch.float32, device=self.centre.device))
+        if not self._has_rest:
             zero = tr.sum() * 0
             return zero, zero
+        pair = self.rest_pairs
         dt = (tr[1:] - tr[:-1]).norm(dim=-1)[pair].mean()
         dq = quat_geodesic_angle(q[1:], q[:-1])[pair].mean()
         return dt, dq
 
     def smoothness_losses(self, substeps: int = 1) -> tuple[Tensor, Tensor]:
         """(acceleration, rotation smoothness) of the trajectory sampled every frame/substeps."""
-        tau = torch.arange(0, (self.n_frames - 1) * substeps + 1, dtype=torch.float32) / substeps
+        tau = torch.arange(0, (self.n_frames - 1) * substeps + 1, dtype=torch.float32, device=self.centre.device) / substeps
         tr, q = self.pose(tau)
         # Angular acceleration, not speed: a steady spin in the hand costs nothing.
         return acceleration_penalty(tr), rotation_smoothness(q, order=2)
+
+    # -- outputs -------------------------------------------------------------------------
+    def export(self, folder: Path, n_frames: int) -> list[Path]:
+        """The canonical Gaussians (3DGS PLY) and the trajectory sampled at every frame."""
+        from cogs.data.io import write_json
+
+        ply, js = folder / "object_canonical.ply", folder / "object_trajectory.json"
+        self.gaussians.save_ply(ply)
+        with torch.no_grad():
+            tr, q = self.pose(torch.arange(n_frames, dtype=torch.float32, device=self.centre.device))
+        write_json(js, {
+            "centre": self.centre.tolist(),
+            "convention": "x_world = R(quat_wxyz) (x_canonical - centre) + translation",
+            "keyframe_times": self.key_times.tolist(),
+            "frames": [{"quat_wxyz": q[i].tolist(), "translation": tr[i].tolist()} for i in range(len(tr))],
+        })
+        return [ply, js]
 
 
 def object_size(means: Tensor, centre: Tensor) -> float:
@@ -165,14 +251,14 @@ def rest_frames(positions: Tensor, size: float, speed: float = 0.02, window: int
     ``speed`` x ``size`` per frame, in runs of at least ``min_run`` frames.
     """
     T = int(positions.shape[0])
-    rest = torch.zeros(T, dtype=torch.bool)
+    rest = torch.zeros(T, dtype=torch.bool, device=positions.device)
     if T < max(min_run, 2) or size <= 0:
         return rest
     h = window // 2
     p = positions.detach().double()
     pad = torch.cat([p[:1].expand(h, 3), p, p[-1:].expand(h, 3)])
     smooth = pad.unfold(0, 2 * h + 1, 1).median(dim=-1).values  # [T, 3]
-    idx = torch.arange(T)
+    idx = torch.arange(T, device=positions.device)
     lo, hi = (idx - h).clamp(min=0), (idx + h).clamp(max=T - 1)
     v = (smooth[hi] - smooth[lo]).norm(dim=-1) / (hi - lo).clamp(min=1)
     still = v < speed * size

@@ -18,9 +18,9 @@ from cogs.render.sh import SH_C0, sh_basis
 
 
 class Irradiance(torch.nn.Module):
-    def __init__(self) -> None:
+    def __init__(self, device: torch.device | str | None = None) -> None:
         super().__init__()
-        coeffs = torch.zeros(9)
+        coeffs = torch.zeros(9, device=device)
         coeffs[0] = 1.0 / SH_C0
         self.coeffs = torch.nn.Parameter(coeffs)
 

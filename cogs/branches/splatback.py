@@ -32,7 +32,7 @@ def splat_statistics(
     """Returns (visible weight [N], weighted colour sum [N, 3] or None, means2d [N, 2])."""
     n = means.shape[0]
     D = 1 if image is None else 4
-    ones = torch.ones(n, D, requires_grad=True)
+    ones = torch.ones(n, D, device=means.device, requires_grad=True)
     with torch.enable_grad():
         out = rasterize(
             means.detach(), quats.detach(), scales.detach(), opacities.detach(), ones,

@@ -44,10 +44,12 @@ def seed_overrides(overrides: list[str], seed: int) -> list[str]:
 
 
 def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, list[str]],
-                 seeds: tuple[int, ...] = (0,)) -> dict:
-    from cogs.commands import Train
+                 seeds: tuple[int, ...] = (0,), device: str = "cpu") -> dict:
+    from cogs.config import apply_overrides, load_config
+    from cogs.config import preset as get_preset
+    from cogs.data.scene import load_scene
     from cogs.eval.evaluate import evaluate
-    from cogs.train.trainer import run_is_finished
+    from cogs.train.trainer import Trainer, run_is_finished
 
     assert seeds and len(set(seeds)) == len(seeds), seeds
     out = Path(out)
@@ -60,9 +62,10 @@ def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, li
         trained = not run_is_finished(run)
         if trained:
             resume = (run / "checkpoints" / "last.pt").exists()
-            Train(Path(scene_dir), run, preset=preset, set=[] if resume else sets, resume=resume).run()
+            cfg = load_config(run / "config.yaml") if resume else apply_overrides(get_preset(preset), sets)
+            Trainer(load_scene(scene_dir), cfg, run, resume=resume, device=device).run()
         saved = run / "eval" / "metrics.json"
-        m = read_json(saved) if saved.exists() and not trained else evaluate(run, save_renders=False)
+        m = read_json(saved) if saved.exists() and not trained else evaluate(run, save_renders=False, device=device)
         row = rows.setdefault(name, {"overrides": overrides, "seeds": {}})
         row["seeds"][str(seed)] = m
         row["metrics"] = mean_metrics(list(row["seeds"].values()))

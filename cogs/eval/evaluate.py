@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from cogs.data.io import read_json, write_image, write_json
+from cogs.errors import UserError
 from cogs.eval.metrics import crop_to_mask, image_metrics, iou
 from cogs.geometry.camera import project_points
 from cogs.geometry.rotations import quat_to_rotmat, rotmat_geodesic_angle
@@ -48,29 +49,83 @@ def _error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
 
 def _branch_iou(r, branch: str, mask: np.ndarray) -> float:
     """IoU of a branch's rendered silhouette (its alpha share > 0.5) with a true mask."""
-    return iou(r.branch_alpha[branch][..., 0].numpy() > 0.5, mask)
+    return iou(r.branch_alpha[branch][..., 0].cpu().numpy() > 0.5, mask)
 
 
-def render_frame(comp, scene, t: int, branches=None, viewmat=None, K=None):
+def _camera(model, scene, t: int, viewmat=None, K=None, pose=None):
+    dev = model.device
+    vm = torch.as_tensor(scene.cameras.world_to_camera[t] if viewmat is None else viewmat, dtype=torch.float32, device=dev)
+    KK = torch.as_tensor(scene.cameras.K[t] if K is None else K, dtype=torch.float32, device=dev)
+    return vm, KK
+
+
+def render_frame(model, scene, t: int, branches=None, viewmat=None, K=None, human_pose=None):
     """Composite render of frame t (training camera unless viewmat/K given), no grad."""
-    vm = torch.as_tensor(scene.cameras.world_to_camera[t] if viewmat is None else viewmat, dtype=torch.float32)
-    KK = torch.as_tensor(scene.cameras.K[t] if K is None else K, dtype=torch.float32)
+    vm, KK = _camera(model, scene, t, viewmat, K)
+    poses = {"human": human_pose} if human_pose is not None else None
     with torch.no_grad():
-        return comp.render(vm, KK, scene.width, scene.height, t, branches=branches, background=torch.zeros(3))
+        return model.render(vm, KK, scene.width, scene.height, t, branches=branches,
+                            background=vm.new_zeros(3), poses=poses)
+
+
+def _numpy(x: torch.Tensor) -> np.ndarray:
+    """A rendered image on the host, checked: a non-finite pixel is a bug, never a metric."""
+    a = x.detach().clamp(0, 1).cpu().numpy() if x.is_floating_point() else x.cpu().numpy()
+    assert np.isfinite(a).all(), "a render holds non-finite values"
+    return a
+
+
+def load_run(run: Path, device: str = "cpu"):
+    """(model, config, scene) of a run folder: the model from its last checkpoint (no
+    images read), the scene its run.json names."""
+    from cogs.config import load_config
+    from cogs.data.scene import load_scene
+    from cogs.model import Model
+
+    run = Path(run)
+    model = Model.load(run, device=device)
+    info = read_json(run / "run.json") if (run / "run.json").exists() else {}
+    if not info.get("scene") or not Path(info["scene"]).exists():
+        raise UserError(f"{run}/run.json names scene {info.get('scene')!r}, which does not exist")
+    return model, load_config(run / "config.yaml"), load_scene(info["scene"])
+
+
+def _where(run: Path) -> dict:
+    """{"stage", "step"}: where the run's last checkpoint stands."""
+    path = run / "checkpoints" / "last.json"
+    if path.exists():
+        return read_json(path)
+    from cogs.train import checkpoint as ckpt
+
+    state = ckpt.load(run / "checkpoints" / "last.pt")["run_state"]
+    return {"stage": state.stage, "step": state.step}
+
+
+def _summary(run: Path, names: list[str], model) -> dict:
+    """The run's train_summary.json; for an unfinished run, the same from its checkpoint."""
+    path = run / "train_summary.json"
+    if path.exists():
+        return read_json(path)
+    from cogs.train import checkpoint as ckpt
+
+    state = ckpt.load(run / "checkpoints" / "last.pt")["run_state"]
+    return {"stages": names[: state.stage], "train_seconds": sum(state.stage_seconds.values()),
+            "stage_seconds": dict(state.stage_seconds), "n_gaussians": model.counts()}
 
 
 def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose_fit_steps: int = 40,
-             show_progress: bool = True) -> dict:
-    from cogs.train.trainer import load_run
+             show_progress: bool = True, device: str = "cpu") -> dict:
+    from cogs.train.stages import stage_names
 
     run = Path(run)
     out = Path(out) if out else run / "eval"
-    trainer = load_run(run)
-    scene, comp = trainer.scene, trainer.compositor
+    model, cfg, scene = load_run(run, device)
     gt = scene.gt
     notes: list[str] = []
-    if not trainer.finished():
-        msg = (f"{run} is unfinished: it stopped in stage {trainer.stage_in_progress()} after {trainer.state.step} "
+    names = stage_names(cfg)
+    where = _where(run)
+    if where["stage"] < len(names):
+        msg = (f"{run} is unfinished: it stopped in stage {names[where['stage']]} after {where['step']} "
                f"steps; these numbers are of that state (`cogs train --resume --out {run}` finishes it)")
         log.warning(msg)
         notes.append(msg)
@@ -84,12 +139,12 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
         notes.append("no ground truth: crops use the input masks; novel views, decomposition and object pose error are null")
 
     rdir = out / "renders" if save_renders else None
-    strict = _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, rdir,
+    strict = _frame_metrics(model, scene, test, human_masks, object_masks, protocol, notes, rdir,
                             show_progress=show_progress)
     fitted = None
-    if pose_fit_steps > 0 and comp.human is not None and comp.human.cfg.refine_pose:
-        poses = _test_time_poses(trainer, test, pose_fit_steps, show_progress)
-        fitted = _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, None, poses,
+    if pose_fit_steps > 0 and model.human is not None and model.human.cfg.refine_pose:
+        poses = _test_time_poses(model, cfg, scene, test, pose_fit_steps, show_progress)
+        fitted = _frame_metrics(model, scene, test, human_masks, object_masks, protocol, notes, None, poses,
                                 "eval: frames with fitted poses", show_progress)
     full, hcrop, ocrop, h_iou, o_iou = strict
 
@@ -112,11 +167,11 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
             "human_iou": float(np.mean(h_iou)) if h_iou else None,
             "object_iou": float(np.mean(o_iou)) if o_iou else None,
         }
-        metrics["novel_view"] = _novel_views(comp, scene, notes, out if save_renders else None, show_progress)
-        if scene.has_object and comp.object is not None:
-            metrics["object_pose_error"] = _object_pose_error(comp.object, gt.object, test, list(scene.split["train"]))
-        if comp.human is not None and test:
-            metrics["body_pose_error"] = _body_pose_error(comp.human, scene, list(scene.split["train"]), test)
+        metrics["novel_view"] = _novel_views(model, scene, notes, out if save_renders else None, show_progress)
+        if scene.has_object and model.object is not None:
+            metrics["object_pose_error"] = _object_pose_error(model.object, gt.object, test, list(scene.split["train"]))
+        if model.human is not None and test:
+            metrics["body_pose_error"] = _body_pose_error(model.human, scene, list(scene.split["train"]), test)
     if fitted is not None:
         f_full, f_h, f_o, f_hi, f_oi = fitted
         metrics["test_time_pose_fit"] = {
@@ -129,47 +184,39 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
         }
         notes.append("test_time_pose_fit: the body pose of each held-out frame fitted to that frame (appearance, "
                      "object and scene frozen), the Anim-NeRF/InstantAvatar protocol; the top-level numbers use no test image")
-    summary_path = run / "train_summary.json"
-    summary = read_json(summary_path) if summary_path.exists() else trainer.summary()
-    metrics.update(summary)
+    metrics.update(_summary(run, names, model))
     metrics["notes"] = _summarise_notes(notes)
     write_json(out / "metrics.json", metrics)
     return metrics
 
 
-def _test_time_poses(trainer, test: list[int], steps: int, show_progress: bool) -> dict:
+def _test_time_poses(model, cfg, scene, test: list[int], steps: int, show_progress: bool) -> dict:
     """Each held-out frame's body pose fitted to its own image (the training's pose refit,
     `cogs.train.posefit`, with `steps` Adam steps): the Anim-NeRF / InstantAvatar protocol."""
     from dataclasses import replace
 
     from cogs.train.posefit import fit_frame_pose, posed
 
-    scene, comp = trainer.scene, trainer.compositor
-    opts = replace(trainer.cfg.refit, steps=steps)
+    opts = replace(cfg.refit, steps=steps)
     out = {}
     for t in track(test, "eval: test-time pose fit", show_progress):
-        vm = torch.as_tensor(scene.cameras.world_to_camera[t], dtype=torch.float32)
-        K = torch.as_tensor(scene.cameras.K[t], dtype=torch.float32)
-        img = torch.as_tensor(scene.images[t]).float() / 255.0
-        fit = fit_frame_pose(comp, img, vm, K, t, opts)
+        vm, K = _camera(model, scene, t)
+        img = torch.from_numpy(np.ascontiguousarray(scene.images[t])).to(model.device).float() / 255.0
+        fit = fit_frame_pose(model, img, vm, K, t, opts)
         with torch.no_grad():
-            out[t] = posed(comp.human, t, fit)
+            out[t] = posed(model.human, t, fit)
     return out
 
 
-def _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes, rdir, poses=None,
+def _frame_metrics(model, scene, test, human_masks, object_masks, protocol, notes, rdir, poses=None,
                    label: str = "eval: held-out frames", show_progress: bool = True):
     """Per-frame metric rows over the held-out frames: (full, human crop, object crop,
     human IoU, object IoU). `poses` optionally overrides the human pose per frame."""
     gt = scene.gt
     full, hcrop, ocrop, h_iou, o_iou = [], [], [], [], []
     for t in track(test, label, show_progress):
-        vm = torch.as_tensor(scene.cameras.world_to_camera[t], dtype=torch.float32)
-        K = torch.as_tensor(scene.cameras.K[t], dtype=torch.float32)
-        hp = poses.get(t) if poses else None
-        with torch.no_grad():
-            r = comp.render(vm, K, scene.width, scene.height, t, background=torch.zeros(3), human_pose=hp)
-        pred = r.rgb.clamp(0, 1).numpy()
+        r = render_frame(model, scene, t, human_pose=poses.get(t) if poses else None)
+        pred = _numpy(r.rgb)
         img = scene.images[t].astype(np.float32) / 255.0
         full.append(image_metrics(pred, img, notes=notes))
         c = crop_to_mask(pred, img, human_masks[t])
@@ -188,9 +235,9 @@ def _frame_metrics(comp, scene, test, human_masks, object_masks, protocol, notes
             write_image(rdir / f"{fid}_composite.png", pred)
             write_image(rdir / f"{fid}_gt.png", img)
             write_image(rdir / f"{fid}_error.png", _error_map(pred, img))
-            for b in comp.available():
-                rb = render_frame(comp, scene, t, branches=(b,))
-                write_image(rdir / f"{fid}_{b}.png", rb.rgb.clamp(0, 1).numpy())
+            for b in model.available():
+                rb = render_frame(model, scene, t, branches=(b,))
+                write_image(rdir / f"{fid}_{b}.png", _numpy(rb.rgb))
     return full, hcrop, ocrop, h_iou, o_iou
 
 
@@ -213,15 +260,15 @@ def _summarise_notes(notes: list[str]) -> list[str]:
     return out
 
 
-def _novel_views(comp, scene, notes: list[str], out: Path | None, show_progress: bool = True) -> dict | None:
+def _novel_views(model, scene, notes: list[str], out: Path | None, show_progress: bool = True) -> dict | None:
     nv = scene.gt.novel
     if nv is None or len(nv.frames) == 0:
         notes.append("novel_view: the scene has no novel-view ground truth")
         return None
     rows, hcrop, h_iou, o_iou = [], [], [], []
     for i, t in track(enumerate(nv.frames), "eval: novel views", show_progress):
-        r = render_frame(comp, scene, int(t), viewmat=nv.cameras.world_to_camera[i], K=nv.cameras.K[i])
-        pred = r.rgb.clamp(0, 1).numpy()
+        r = render_frame(model, scene, int(t), viewmat=nv.cameras.world_to_camera[i], K=nv.cameras.K[i])
+        pred = _numpy(r.rgb)
         img = nv.images[i].astype(np.float32) / 255.0
         rows.append(image_metrics(pred, img, notes=notes))
         # The rings see the person from all round, sides no training view may have seen:
@@ -229,9 +276,9 @@ def _novel_views(comp, scene, notes: list[str], out: Path | None, show_progress:
         c = crop_to_mask(pred, img, nv.human_masks[i])
         if c is not None:
             hcrop.append(image_metrics(*c, notes=notes))
-        if comp.human is not None and nv.human_masks[i].any():
+        if model.human is not None and nv.human_masks[i].any():
             h_iou.append(_branch_iou(r, "human", nv.human_masks[i]))
-        if comp.object is not None and nv.object_masks[i].any():
+        if model.object is not None and nv.object_masks[i].any():
             o_iou.append(_branch_iou(r, "object", nv.object_masks[i]))
         if out is not None:
             write_image(out / "novel" / f"v{i:03d}_render.png", pred)
@@ -259,11 +306,12 @@ def _body_pose_error(human, scene, train: list[int], test: list[int]) -> dict:
     """
     gt = scene.gt
     body = human.body
-    w2c = torch.as_tensor(gt.cameras.world_to_camera, dtype=torch.float32)
-    K = torch.as_tensor(gt.cameras.K, dtype=torch.float32)
+    dev = human.shape.device
+    host = lambda a: torch.as_tensor(a, dtype=torch.float32, device=dev)  # noqa: E731
+    w2c, K = host(gt.cameras.world_to_camera).cpu(), host(gt.cameras.K).cpu()
 
     def joints(pose, transl, shape):
-        return body.bone_transforms(torch.as_tensor(pose).float(), torch.as_tensor(transl).float(), shape)[1]
+        return body.bone_transforms(host(pose), host(transl), host(shape))[1].cpu()
 
     def pixels(J):
         return torch.stack([project_points(J[t], w2c[t], K[t])[0] for t in range(len(J))])
@@ -271,10 +319,10 @@ def _body_pose_error(human, scene, train: list[int], test: list[int]) -> dict:
     with torch.no_grad():
         fitted = [human.frame_pose(t) for t in range(len(gt.body))]
         poses = {
-            "input": joints(scene.body.pose, scene.body.transl, torch.as_tensor(scene.body.shape).float()),
+            "input": joints(scene.body.pose, scene.body.transl, scene.body.shape),
             "fitted": joints(torch.cat([f[0] for f in fitted]), torch.cat([f[1] for f in fitted]), human.shape),
         }
-        truth = joints(gt.body.pose, gt.body.transl, torch.as_tensor(gt.body.shape).float())
+        truth = joints(gt.body.pose, gt.body.transl, gt.body.shape)
     truth_px = pixels(truth)
     out: dict = {"joint_px": {}, "joint_mm": {}}
     for name, J in poses.items():
@@ -298,27 +346,28 @@ def _object_pose_error(obj, gt_track, test: list[int], train: list[int]) -> dict
     unaligned errors are reported beside it.
     """
     T = len(gt_track)
+    cpu = torch.device("cpu")
     with torch.no_grad():
-        tr, q = obj.pose(torch.arange(T, dtype=torch.float32))
-    R = quat_to_rotmat(q).double()
-    Rg = quat_to_rotmat(torch.as_tensor(gt_track.quats)).double()
-    tg = torch.as_tensor(gt_track.translations).double()
-    tr = tr.double()
-    idx = torch.tensor(train)
+        tr, q = obj.pose(torch.arange(T, dtype=torch.float32, device=obj.centre.device))
+    R = quat_to_rotmat(q).double().cpu()
+    Rg = quat_to_rotmat(torch.as_tensor(gt_track.quats, device=cpu)).double()
+    tg = torch.as_tensor(gt_track.translations, device=cpu).double()
+    tr = tr.double().cpu()
+    idx = torch.tensor(train, device=cpu)
     M = (R[idx].transpose(1, 2) @ Rg[idx]).sum(0)
     U, _, Vt = torch.linalg.svd(M)
-    D = torch.diag(torch.tensor([1.0, 1.0, float(torch.sign(torch.det(U @ Vt)))], dtype=torch.float64))
+    D = torch.diag(torch.tensor([1.0, 1.0, float(torch.sign(torch.det(U @ Vt)))], dtype=torch.float64, device=cpu))
     R0 = U @ D @ Vt
     d0 = (R[idx].transpose(1, 2) @ (tg[idx] - tr[idx])[..., None])[..., 0].mean(0)
     Ra, ta = R @ R0, tr + (R @ d0[:, None])[..., 0]
 
     def err(Rx, tx, frames):
-        f = torch.tensor(frames)
+        f = torch.tensor(frames, device=cpu)
         rot = torch.rad2deg(rotmat_geodesic_angle(Rx[f], Rg[f])).mean()
         return float((tx[f] - tg[f]).norm(dim=1).mean()), float(rot)
 
     t_al, r_al = err(Ra, ta, test)
     t_raw, r_raw = err(R, tr, test)
     return {"translation": t_al, "rotation_deg": r_al, "translation_unaligned": t_raw, "rotation_deg_unaligned": r_raw,
-            "canonical_offset_deg": float(torch.rad2deg(rotmat_geodesic_angle(R0, torch.eye(3, dtype=torch.float64)))),
+            "canonical_offset_deg": float(torch.rad2deg(rotmat_geodesic_angle(R0, torch.eye(3, dtype=torch.float64, device=cpu)))),
             "canonical_offset_m": float(d0.norm())}

@@ -56,19 +56,18 @@ def orbit_cameras(centre: np.ndarray, radius: float, height: float, n: int, up=(
     return out
 
 
-def render_videos(trainer, out: Path, orbit_frames: int = 72) -> dict[str, str]:
+def render_videos(model, scene, out: Path, orbit_frames: int = 72) -> dict[str, str]:
     """Composite renders along the training camera path and along a new orbit."""
-    from cogs.eval.evaluate import render_frame
+    from cogs.eval.evaluate import _numpy, render_frame
 
-    scene, comp = trainer.scene, trainer.compositor
-    path_frames = [render_frame(comp, scene, t).rgb.clamp(0, 1).numpy() for t in range(scene.n_frames)]
+    path_frames = [_numpy(render_frame(model, scene, t).rgb) for t in range(scene.n_frames)]
     gt_frames = [scene.images[t] / 255.0 for t in range(scene.n_frames)]
     side = [np.concatenate([g, p], axis=1) for g, p in zip(gt_frames, path_frames)]
     write_video(out / "video_camera_path.mp4", side, fps=scene.fps)
     # Orbit around the person, the sequence playing while the camera circles.
+    h = model.human
     with torch.no_grad():
-        joints = [trainer.human.body.bone_transforms(*trainer.human.frame_pose(t), trainer.human.shape)[1][0].mean(0).numpy()
-                  for t in range(scene.n_frames)]
+        joints = [h.body.bone_transforms(*h.frame_pose(t), h.shape)[1][0].mean(0).cpu().numpy() for t in range(scene.n_frames)]
     centre = np.mean(joints, axis=0)
     cams = scene.cameras.world_to_camera
     eyes = -np.einsum("tji,tj->ti", cams[:, :3, :3], cams[:, :3, 3])
@@ -78,7 +77,7 @@ def render_videos(trainer, out: Path, orbit_frames: int = 72) -> dict[str, str]:
     frames = []
     for i, vm in enumerate(orbit):
         t = int(round(i / max(orbit_frames - 1, 1) * (scene.n_frames - 1)))
-        frames.append(render_frame(comp, scene, t, viewmat=vm, K=scene.cameras.K[0]).rgb.clamp(0, 1).numpy())
+        frames.append(_numpy(render_frame(model, scene, t, viewmat=vm, K=scene.cameras.K[0]).rgb))
     write_video(out / "video_orbit.mp4", frames, fps=scene.fps)
     return {"camera_path": "video_camera_path.mp4", "orbit": "video_orbit.mp4"}
 
@@ -196,16 +195,16 @@ def metrics_table(m: dict) -> list[tuple[str, str]]:
     return rows
 
 
-def write_report(run: Path, title: str = "cogs run", extra: dict | None = None, videos: bool = True) -> Path:
+def write_report(run: Path, title: str = "cogs run", extra: dict | None = None, videos: bool = True,
+                 device: str = "cpu") -> Path:
     """Build report.html / report.md in RUN from the run's outputs; returns the HTML path."""
-    from cogs.train.trainer import load_run
+    from cogs.eval.evaluate import load_run
 
     run = Path(run)
     m = read_json(run / "eval" / "metrics.json")
     figs = run / "report_files"
     plot_losses(read_json(run / "train_log.json"), figs / "losses.png")
-    trainer = load_run(run)
-    scene = trainer.scene
+    model, _, scene = load_run(run, device)
     test = scene.split["test"]
     pick = [test[i] for i in np.linspace(0, len(test) - 1, min(4, len(test))).round().astype(int)] if test else []
     rd = run / "eval" / "renders"
@@ -221,7 +220,7 @@ def write_report(run: Path, title: str = "cogs run", extra: dict | None = None, 
         nv_rows.append([(f"GT v{a}", nd / f"v{a:03d}_gt.png"), ("render", nd / f"v{a:03d}_render.png"),
                         (f"GT v{b}", nd / f"v{b:03d}_gt.png"), ("render", nd / f"v{b:03d}_render.png")])
     has_novel = strip(nv_rows, figs / "novel.png")
-    vids = render_videos(trainer, figs) if videos else {}
+    vids = render_videos(model, scene, figs) if videos else {}
 
     table = metrics_table(m)
     notes = m.get("notes", [])

@@ -151,9 +151,11 @@ def slerp(q0: Tensor, q1: Tensor, u: Tensor) -> Tensor:
     return quat_normalize(w0 * q0 + w1 * q1)
 
 
-def random_quat(n: int, generator: torch.Generator | None = None, dtype=torch.float32) -> Tensor:
-    """n rotations uniform on SO(3) (normalised Gaussian 4-vectors), wxyz."""
-    q = torch.randn(n, 4, generator=generator, dtype=dtype)
+def random_quat(n: int, generator: torch.Generator | None = None, dtype=torch.float32, device=None) -> Tensor:
+    """n rotations uniform on SO(3) (normalised Gaussian 4-vectors), wxyz; drawn on the
+    generator's device unless `device` is given."""
+    device = device if device is not None else (generator.device if generator is not None else None)
+    q = torch.randn(n, 4, generator=generator, dtype=dtype, device=device)
     return quat_normalize(q)
 
 

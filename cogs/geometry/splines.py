@@ -111,7 +111,7 @@ def _hermite_design(times_k: Tensor, tau: Tensor) -> Tensor:
     k, u, delta = segment_coordinates(times_k, tau)
     h = hermite_basis(u)
     A = tau.new_zeros(tau.shape[0], 2 * n)
-    rows = torch.arange(tau.shape[0])
+    rows = torch.arange(tau.shape[0], device=tau.device)
     if n == 1:
         A[:, 0] = 1.0
         return A
@@ -146,7 +146,7 @@ def uniform_keyframe_times(frame_times: Tensor, n_keyframes: int) -> Tensor:
     if n_keyframes < 2:
         raise ValueError(f"need at least 2 keyframes, got {n_keyframes}")
     lo, hi = float(frame_times.min()), float(frame_times.max())
-    return torch.linspace(lo, hi, n_keyframes, dtype=frame_times.dtype)
+    return torch.linspace(lo, hi, n_keyframes, dtype=frame_times.dtype, device=frame_times.device)
 
 
 def _fit_positions(
@@ -162,7 +162,7 @@ def _fit_positions(
     A = _hermite_design(sk, s)  # [F, 2K]
     R = _bending_rows(sk)  # energy over s in [0, 1]
     # A tiny ridge keeps the system definite when some segment holds no frame.
-    ridge = 1e-9 * torch.eye(2 * n, dtype=A.dtype)
+    ridge = 1e-9 * torch.eye(2 * n, dtype=A.dtype, device=A.device)
     weights = w / w.sum()
     for it in range(robust_iters + 1):
         Aw = A * weights[:, None]
@@ -220,7 +220,7 @@ def _robust_rotation_keyframes(
         rob = torch.ones_like(kern)
         for it in range(robust_iters + 1):
             ww = kern * rob
-            lhs = X.T @ (X * ww[:, None]) + 1e-9 * torch.eye(2, dtype=X.dtype)
+            lhs = X.T @ (X * ww[:, None]) + 1e-9 * torch.eye(2, dtype=X.dtype, device=X.device)
             coef = torch.linalg.solve(lhs, X.T @ (omega * ww[:, None]))  # [2, 3]
             if it == robust_iters:
                 break
@@ -263,7 +263,7 @@ def _refine_rotations(
     if iters <= 0:
         return q0
     target = quat_normalize(quats).detach()
-    delta = torch.zeros(q0.shape[0], 3, dtype=q0.dtype, requires_grad=True)
+    delta = torch.zeros(q0.shape[0], 3, dtype=q0.dtype, device=q0.device, requires_grad=True)
     c2 = math.sin(math.radians(5.0) / 2) ** 2
     weights = (w / w.sum()).detach()
     d_s = (times_k[1:] - times_k[:-1]) / (times_k[-1] - times_k[0])

@@ -134,15 +134,16 @@ def warmup() -> float:
     from cogs.render.api import rasterize
 
     t0 = time.perf_counter()
-    g = torch.Generator().manual_seed(0)
+    cpu = torch.device("cpu")  # the kernels are host code: warm them on host tensors
+    g = torch.Generator(device=cpu).manual_seed(0)
     n = 8
-    means = (torch.rand(n, 3, generator=g) - 0.5) * 0.5 + torch.tensor([0.0, 0.0, 2.0])
+    means = (torch.rand(n, 3, generator=g, device=cpu) - 0.5) * 0.5 + torch.tensor([0.0, 0.0, 2.0], device=cpu)
     means.requires_grad_(True)
-    quats = torch.randn(n, 4, generator=g)
-    scales = torch.full((n, 3), 0.05)
-    opac = torch.full((n,), 0.7)
-    colors = torch.rand(n, 3, generator=g)
-    K = torch.tensor([[20.0, 0.0, 10.0], [0.0, 20.0, 10.0], [0.0, 0.0, 1.0]])
-    out = rasterize(means, quats, scales, opac, colors, torch.eye(4), K, 20, 20, backend="cpu")
+    quats = torch.randn(n, 4, generator=g, device=cpu)
+    scales = torch.full((n, 3), 0.05, device=cpu)
+    opac = torch.full((n,), 0.7, device=cpu)
+    colors = torch.rand(n, 3, generator=g, device=cpu)
+    K = torch.tensor([[20.0, 0.0, 10.0], [0.0, 20.0, 10.0], [0.0, 0.0, 1.0]], device=cpu)
+    out = rasterize(means, quats, scales, opac, colors, torch.eye(4, device=cpu), K, 20, 20, backend="cpu")
     (out.colors.sum() + out.alpha.sum() + out.depth.sum()).backward()
     return time.perf_counter() - t0

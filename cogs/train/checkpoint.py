@@ -1,10 +1,14 @@
-"""Checkpoint files: written atomically, loaded without unpickling arbitrary objects.
+"""Checkpoint files: written atomically, read without unpickling arbitrary objects.
 
 `last.pt` always holds the newest checkpoint (write to a temporary file, fsync, rename:
 a run killed mid-write leaves the previous one intact); stage ends are also kept as
 `stage_<name>.pt`. `last.json` says where the run stands, for people and scripts.
-Payloads hold only tensors, numbers, strings, lists and dicts, so `torch.load` runs with
-`weights_only=True`.
+Payloads hold only tensors, numbers, strings, lists and dicts (dataclasses and arrays are
+flattened to those), so they load with `weights_only=True`.
+
+Payload: `run_state` (RunState), `body_model`, `branches` (the model's state dicts, see
+`Model.payload`), `optimizers` and `optimizer_groups`, `density` (each branch's density
+statistics), `rng` (every generator's state), `planes_assigned`.
 """
 
 from __future__ import annotations
@@ -14,10 +18,24 @@ import json
 import os
 import shutil
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from cogs.model import read_checkpoint
+
+
+@dataclass
+class RunState:
+    """Where the run stands; saved in every checkpoint."""
+
+    stage: int = 0  # index into the run's stage list of the stage in progress
+    step: int = 0  # completed steps of that stage
+    history: list[dict] = field(default_factory=list)
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    density_events: list[dict] = field(default_factory=list)
 
 
 def _plain(obj):
@@ -26,6 +44,8 @@ def _plain(obj):
         return {"__dataclass__": type(obj).__name__, **{f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}}
     if isinstance(obj, np.ndarray):
         return {"__ndarray__": torch.from_numpy(obj.copy()), "dtype": str(obj.dtype)}
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().cpu()
     if isinstance(obj, dict):
         return {k: _plain(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
@@ -35,18 +55,21 @@ def _plain(obj):
     return obj
 
 
-def _restore(obj, classes: dict):
+_CLASSES = {"RunState": RunState}
+
+
+def _restore(obj):
     if isinstance(obj, dict):
         if "__ndarray__" in obj:
             return obj["__ndarray__"].numpy().astype(obj["dtype"])
         if "__tuple__" in obj:
-            return tuple(_restore(v, classes) for v in obj["__tuple__"])
+            return tuple(_restore(v) for v in obj["__tuple__"])
         if "__dataclass__" in obj:
-            cls = classes[obj["__dataclass__"]]
-            return cls(**{k: _restore(v, classes) for k, v in obj.items() if k != "__dataclass__"})
-        return {k: _restore(v, classes) for k, v in obj.items()}
+            cls = _CLASSES[obj["__dataclass__"]]
+            return cls(**{k: _restore(v) for k, v in obj.items() if k != "__dataclass__"})
+        return {k: _restore(v) for k, v in obj.items()}
     if isinstance(obj, list):
-        return [_restore(v, classes) for v in obj]
+        return [_restore(v) for v in obj]
     return obj
 
 
@@ -71,31 +94,9 @@ def save(folder: Path, payload: dict, tag: str | None = None) -> Path:
 
 
 def load(path: Path) -> dict:
-    from cogs.train.trainer import RunState
-
-    raw = torch.load(path, map_location="cpu", weights_only=True)
-    return _restore(raw, {"RunState": RunState})
+    return _restore(read_checkpoint(path))
 
 
 def load_last(folder: Path) -> dict | None:
     path = Path(folder) / "last.pt"
     return load(path) if path.exists() else None
-
-
-def load_module(module: torch.nn.Module, state: dict) -> None:
-    """Copy a state dict into a module whose per-Gaussian tensors may differ in length
-    (call before creating optimizers: parameters are replaced by new objects)."""
-    params = dict(module.named_parameters())
-    buffers = dict(module.named_buffers())
-    missing = (set(params) | set(buffers)) - set(state)
-    unknown = set(state) - set(params) - set(buffers)
-    assert not missing and not unknown, (sorted(missing), sorted(unknown))
-    from cogs.train.density import replace_parameter
-
-    for name, value in state.items():
-        owner_name, _, attr = name.rpartition(".")
-        owner = module.get_submodule(owner_name) if owner_name else module
-        if name in params:
-            replace_parameter(owner, attr, value)
-        else:
-            setattr(owner, attr, value.clone())

@@ -42,27 +42,23 @@ class PoseFit(NamedTuple):
     loss_last: float
 
 
-def _subset(s, keep: Tensor):
-    from cogs.branches.compositor import Splats
-
-    return Splats(s.means[keep], s.quats[keep], s.scales[keep], s.opacities[keep], s.rgb[keep])
-
-
-def fit_frame_pose(comp, image: Tensor, viewmat: Tensor, K: Tensor, t: int, opts: PoseRefit,
+def fit_frame_pose(model, image: Tensor, viewmat: Tensor, K: Tensor, t: int, opts: PoseRefit,
                    pose: tuple[Tensor, Tensor] | None = None) -> PoseFit:
     """The correction to frame t's body pose that fits `image` ([H, W, 3] in [0, 1]),
     starting from `pose` (default: the pose the human branch gives frame t)."""
-    human = comp.human
+    human = model.human
     H, W = int(image.shape[0]), int(image.shape[1])
-    zero = (torch.zeros(1, len(human.refined_bones), 3), torch.zeros(1, 3))
+    zero = (image.new_zeros(1, len(human.refined_bones), 3), image.new_zeros(1, 3))
+    black = image.new_zeros(3)
+    campos = -(viewmat[:3, :3].T @ viewmat[:3, 3])
     with torch.no_grad():
         state = human.decode()
         base_pose, base_transl = pose if pose is not None else human.frame_pose(t)
-        alone = comp.render(viewmat, K, W, H, t, branches=("human",), background=torch.zeros(3),
-                            human_pose=(base_pose, base_transl), human_state=state)
+        alone = model.render(viewmat, K, W, H, t, branches=("human",), background=black,
+                             poses={"human": (base_pose, base_transl)}, prepared={"human": state})
         foot = alone.alpha[..., 0] > 0.01
         if not bool(foot.any()):  # the person is off screen: no pixel depends on the pose
-            r = comp.render(viewmat, K, W, H, t, background=torch.zeros(3), human_pose=(base_pose, base_transl))
+            r = model.render(viewmat, K, W, H, t, background=black, poses={"human": (base_pose, base_transl)})
             l1 = float(L.l1(r.rgb, image))
             return PoseFit(*zero, l1, l1)
         y0, y1, x0, x1 = L.crop_box(foot, foot, pad=opts.pad)
@@ -70,17 +66,17 @@ def fit_frame_pose(comp, image: Tensor, viewmat: Tensor, K: Tensor, t: int, opts
         Kc[0, 2] -= x0
         Kc[1, 2] -= y0
         h, w = y1 - y0, x1 - x0
-        others = comp.splats(t, viewmat, tuple(b for b in comp.available() if b != "human"))
+        others = model.splats(t, viewmat, tuple(b for b in model.available() if b != "human"))
         if others:
-            seen = comp.render(viewmat, Kc, w, h, t, background=torch.zeros(3), splats=others)
-            others = {b: _subset(s, seen.raw.radii[seen.slices[b]] > 0) for b, s in others.items()}
+            seen = model.render(viewmat, Kc, w, h, t, background=black, splats=others)
+            others = {b: s.subset(seen.raw.radii[seen.slices[b]] > 0) for b, s in others.items()}
     target = image[y0:y1, x0:x1]
     scale = 1.0 / (H * W * 3)  # the whole frame's L1 mean: pixels outside the box do not change
 
     def image_l1(dp: Tensor, dt: Tensor) -> Tensor:
         p = base_pose.index_add(1, human.refined_bones, dp)
-        splats = {"human": comp.human_splats(t, (p, base_transl + dt), state), **others}
-        r = comp.render(viewmat, Kc, w, h, t, background=torch.zeros(3), splats=splats)
+        splats = {"human": human.splats(t, campos, (p, base_transl + dt), state), **others}
+        r = model.render(viewmat, Kc, w, h, t, background=black, splats=splats)
         return (r.rgb - target).abs().sum() * scale
 
     dp, dt = (z.clone().requires_grad_(True) for z in zero)
@@ -89,15 +85,15 @@ def fit_frame_pose(comp, image: Tensor, viewmat: Tensor, K: Tensor, t: int, opts
     for _ in range(opts.steps):
         opt.zero_grad()
         data = image_l1(dp, dt)
-        seen_l1.append(float(data.detach()))
+        seen_l1.append(data.detach())
         loss = data + opts.reg * (dp.square().sum() + dt.square().sum())
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"pose fit of frame {t}: loss is {float(loss)}")
         loss.backward()
         opt.step()
     with torch.no_grad():
         last = float(image_l1(dp, dt))
-    return PoseFit(dp.detach(), dt.detach(), seen_l1[0] if seen_l1 else last, last)
+    if not (all(bool(torch.isfinite(v)) for v in seen_l1) and torch.isfinite(dp).all() and torch.isfinite(dt).all()):
+        raise FloatingPointError(f"pose fit of frame {t}: a non-finite loss or correction")
+    return PoseFit(dp.detach(), dt.detach(), float(seen_l1[0]) if seen_l1 else last, last)
 
 
 def posed(human, t: int, fit: PoseFit, pose: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
