@@ -19,6 +19,9 @@ class ModelInfo:
     n_bones: int
     n_shape: int
     factory: Callable[[], BodyModel]
+    source: Callable[[], str] = lambda: ""
+    """What the model is built from (a licensed model file, say): a model built from
+    another source is never reused."""
 
 
 def _anny() -> BodyModel:
@@ -36,12 +39,18 @@ def _smpl() -> BodyModel:
     return SmplBody()
 
 
+def _smpl_source() -> str:
+    from cogs.body.smpl_body import smpl_model_path
+
+    return str(smpl_model_path())
+
+
 MODELS: dict[str, ModelInfo] = {
     "anny": ModelInfo(n_bones=104, n_shape=6, factory=_anny),
-    "smpl": ModelInfo(n_bones=24, n_shape=10, factory=_smpl),
+    "smpl": ModelInfo(n_bones=24, n_shape=10, factory=_smpl, source=_smpl_source),
 }
 
-_instances: dict[tuple[str, str], BodyModel] = {}
+_instances: dict[tuple[str, str, str], BodyModel] = {}
 
 
 def load_body_model(name: str = "anny", device=None) -> BodyModel:
@@ -54,10 +63,11 @@ def load_body_model(name: str = "anny", device=None) -> BodyModel:
     import torch
 
     dev = torch.device("cpu" if device is None else device)
-    key = (name, str(dev))
+    info = MODELS[name]
+    key = (name, str(dev), info.source())
     if key not in _instances:
         if dev.type == "cpu":
-            _instances[key] = MODELS[name].factory()
+            _instances[key] = info.factory()
         else:
             _instances[key] = copy.deepcopy(load_body_model(name)).to(dev)
     return _instances[key]

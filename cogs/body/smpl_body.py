@@ -40,9 +40,6 @@ def set_smpl_model_path(path: str | Path | None) -> None:
     overrides ``COGS_SMPL_MODEL``. None clears the setting."""
     global _model_path
     _model_path = None if path is None else Path(path).expanduser()
-    from cogs import body
-
-    body._instances.pop("smpl", None)  # a model built from another file must not be reused
 
 
 def smpl_model_path() -> Path | None:

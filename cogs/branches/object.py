@@ -99,7 +99,8 @@ class ObjectBranch(Branch):
         # Measured on the initial Gaussians and trajectory, then kept: the object's size
         # (metres) and the frames where the initial trajectory rests.
         size = object_size(gaussians.means.detach(), centre) if size is None else float(size)
-        if rest is None:
+        fresh = rest is None
+        if fresh:
             rest = rest_frames(self.prior_t, size, cfg.rest_speed, min_run=cfg.rest_min_frames)
         self.register_buffer("size", torch.tensor(size, dtype=torch.float64, device=centre.device))
         self.register_buffer("rest", rest.to(device=centre.device, dtype=torch.bool).clone())
@@ -107,7 +108,7 @@ class ObjectBranch(Branch):
         pairs = torch.nonzero(self.rest[:-1] & self.rest[1:]).flatten()
         self._has_rest = bool(len(pairs))
         self.register_buffer("rest_pairs", pairs, persistent=False)
-        if self._has_rest:
+        if fresh and self._has_rest:
             log.info("object: at rest in %d of %d frames (initial trajectory)", int(self.rest.sum()), len(self.rest))
 
     def __len__(self) -> int:
@@ -279,7 +280,7 @@ def rest_frames(positions: Tensor, size: float, speed: float = 0.02, window: int
 def fit_initial_trajectory(prior_t: Tensor, prior_q: Tensor, cfg: ObjectConfig) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Keyframes (times, p, v, q) fitted to the initial per-frame poses."""
     T = prior_t.shape[0]
-    frame_times = torch.arange(T, dtype=torch.float64)
+    frame_times = torch.arange(T, dtype=torch.float64, device=prior_t.device)
     K = max(2, int(np.ceil((T - 1) / cfg.frames_per_keyframe)) + 1)
     key_times = uniform_keyframe_times(frame_times, K)
     # No rotation smoothing in the fit: a handled object can spin by 20 degrees a frame, and

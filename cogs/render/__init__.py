@@ -4,7 +4,7 @@
 ``gsplat`` the optional CUDA path. See docs/rendering.md.
 """
 
-from cogs.render.api import RenderOutput, count_pairs, rasterize
-from cogs.render.cpu_backend import warmup
+from cogs.render.api import count_pairs, rasterize, warmup
+from cogs.render.output import RenderOutput
 
 __all__ = ["rasterize", "RenderOutput", "count_pairs", "warmup"]

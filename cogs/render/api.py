@@ -2,29 +2,18 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from cogs.render import cpu_backend, gsplat_backend, torch_backend
+from cogs.render.output import RenderOutput
 from cogs.render.projection import project_gaussians, tile_ranges
 from cogs.render.sh import MAX_SH_DEGREE, num_sh_bases, sh_to_color
 
 BACKENDS = ("auto", "torch", "cpu", "gsplat")
-
-
-@dataclass
-class RenderOutput:
-    """What :func:`rasterize` returns (H = height, W = width, N Gaussians, D channels)."""
-
-    colors: Tensor  # [H, W, D] sum_i c_i alpha_i T_i + T_final * background
-    alpha: Tensor  # [H, W, 1] 1 - T_final
-    depth: Tensor  # [H, W, 1] expected camera z: sum_i w_i z_i / alpha; 0 where alpha == 0
-    means2d: Tensor  # [N, 2] px; .grad holds dL/dmeans2d after backward (densification)
-    radii: Tensor  # [N] int32 px, 0 = culled
-    visible: Tensor  # [N] bool, radii > 0
 
 
 def rasterize(
@@ -176,3 +165,23 @@ def count_pairs(means: Tensor, quats: Tensor, scales: Tensor, viewmat: Tensor, K
     proj = project_gaussians(means, quats, scales, viewmat, K, width, height, near, far)
     return torch_backend.pair_count(tile_ranges(proj.means2d, proj.radii, width, height),
                                     width, height)
+
+
+def warmup() -> float:
+    """Compile (or load from numba's on-disk cache) every CPU kernel by rendering a tiny
+    scene forward and backward. Returns the seconds it took. Call it once at start-up so
+    that JIT time never lands inside a training loop."""
+    t0 = time.perf_counter()
+    cpu = torch.device("cpu")  # the kernels are host code: warm them on host tensors
+    g = torch.Generator(device=cpu).manual_seed(0)
+    n = 8
+    means = (torch.rand(n, 3, generator=g, device=cpu) - 0.5) * 0.5 + torch.tensor([0.0, 0.0, 2.0], device=cpu)
+    means.requires_grad_(True)
+    quats = torch.randn(n, 4, generator=g, device=cpu)
+    scales = torch.full((n, 3), 0.05, device=cpu)
+    opac = torch.full((n,), 0.7, device=cpu)
+    colors = torch.rand(n, 3, generator=g, device=cpu)
+    K = torch.tensor([[20.0, 0.0, 10.0], [0.0, 20.0, 10.0], [0.0, 0.0, 1.0]], device=cpu)
+    out = rasterize(means, quats, scales, opac, colors, torch.eye(4, device=cpu), K, 20, 20, backend="cpu")
+    (out.colors.sum() + out.alpha.sum() + out.depth.sum()).backward()
+    return time.perf_counter() - t0

@@ -12,8 +12,6 @@ and the gradients converted back, so the backend also serves float64 or CUDA ten
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import torch
 from torch import Tensor
@@ -125,25 +123,3 @@ def rasterize_image(
     """-> colours [H, W, D] (with background), alpha [H, W, 1], expected depth [H, W, 1]."""
     return _Rasterize.apply(means2d, conics, opacities, colors, depths, background, radii,
                             width, height)
-
-
-def warmup() -> float:
-    """Compile (or load from numba's on-disk cache) every CPU kernel by rendering a tiny
-    scene forward and backward. Returns the seconds it took. Call it once at start-up so
-    that JIT time never lands inside a training loop."""
-    from cogs.render.api import rasterize
-
-    t0 = time.perf_counter()
-    cpu = torch.device("cpu")  # the kernels are host code: warm them on host tensors
-    g = torch.Generator(device=cpu).manual_seed(0)
-    n = 8
-    means = (torch.rand(n, 3, generator=g, device=cpu) - 0.5) * 0.5 + torch.tensor([0.0, 0.0, 2.0], device=cpu)
-    means.requires_grad_(True)
-    quats = torch.randn(n, 4, generator=g, device=cpu)
-    scales = torch.full((n, 3), 0.05, device=cpu)
-    opac = torch.full((n,), 0.7, device=cpu)
-    colors = torch.rand(n, 3, generator=g, device=cpu)
-    K = torch.tensor([[20.0, 0.0, 10.0], [0.0, 20.0, 10.0], [0.0, 0.0, 1.0]], device=cpu)
-    out = rasterize(means, quats, scales, opac, colors, torch.eye(4, device=cpu), K, 20, 20, backend="cpu")
-    (out.colors.sum() + out.alpha.sum() + out.depth.sum()).backward()
-    return time.perf_counter() - t0

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import torch
 
+from cogs.render.output import RenderOutput
+
 
 def gsplat_available() -> bool:
     try:
@@ -41,8 +43,6 @@ def _require_cuda(means) -> None:
 
 def rasterize(means, quats, scales, opacities, colors, viewmat, K, width, height, *,
               near, far, background, sh_degree):
-    from cogs.render.api import RenderOutput
-
     _require_cuda(means)
     gsplat = _import_gsplat()
     D = 3 if sh_degree is not None else colors.shape[-1]

@@ -1,0 +1,97 @@
+"""The trained model apart from the trainer: it loads from a run folder without the scene's
+images, renders any frame, and no tensor of the method is made on an implicit device."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from cogs.cli import main
+from cogs.config import apply_overrides, quick_config
+from cogs.data.scene import load_scene
+from cogs.model import Model
+from tests.fixtures import TINY
+
+
+@pytest.fixture(scope="module")
+def tiny_run(small_synthetic, tmp_path_factory) -> Path:
+    """A tiny run trained on a copy of the small synthetic scene (so the test may delete its images)."""
+    base = tmp_path_factory.mktemp("model")
+    scene = base / "scene"
+    shutil.copytree(small_synthetic, scene)
+    run = base / "run"
+    assert main(["train", "--scene", str(scene), "--out", str(run), "--set", *TINY]) == 0
+    return run
+
+
+def _camera(scene, t):
+    return (torch.as_tensor(scene.cameras.world_to_camera[t], dtype=torch.float32),
+            torch.as_tensor(scene.cameras.K[t], dtype=torch.float32))
+
+
+def test_model_loads_and_renders_without_the_scene_images(tiny_run):
+    scene_dir = Path(json.loads((tiny_run / "run.json").read_text())["scene"])
+    scene = load_scene(scene_dir)
+    t = int(scene.split["test"][0])
+    vm, K = _camera(scene, t)
+    with torch.no_grad():
+        before = Model.load(tiny_run).render(vm, K, scene.width, scene.height, t)
+    shutil.rmtree(scene_dir / "images")
+    shutil.rmtree(scene_dir / "masks")
+    model = Model.load(tiny_run, device="cpu")
+    assert model.available() == ("human", "object", "scene")
+    with torch.no_grad():
+        after = model.render(vm, K, scene.width, scene.height, t)
+        alone = model.render(vm, K, scene.width, scene.height, t, branches=("human",))
+    torch.testing.assert_close(after.rgb, before.rgb, rtol=0, atol=0)
+    assert float(after.alpha.mean()) > 0.1 and torch.isfinite(after.rgb).all()
+    assert float(alone.branch_alpha["human"].sum()) > 0 and float(alone.branch_alpha["scene"].sum()) == 0
+    # A new body pose renders another picture: the model poses, not replays.
+    pose, transl = model.human.frame_pose(t)
+    with torch.no_grad():
+        moved = model.render(vm, K, scene.width, scene.height, t, poses={"human": (pose, transl + 0.1)})
+    assert not torch.equal(moved.rgb, after.rgb)
+
+
+def test_a_model_with_the_runs_tensors_renders_what_the_trainer_left(tiny_run, small_synthetic):
+    """The loaded branches hold every tensor of the last checkpoint, bit for bit."""
+    from cogs.train import checkpoint as ckpt
+
+    saved = ckpt.load(tiny_run / "checkpoints" / "last.pt")["branches"]
+    model = Model.load(tiny_run)
+    for name, state in saved.items():
+        mine = model.get(name).state_dict()
+        assert mine.keys() == state.keys(), name
+        for k, v in state.items():
+            assert torch.equal(mine[k], v), f"{name}.{k}"
+
+
+def test_every_stage_and_the_refit_make_no_tensor_on_an_implicit_device(small_synthetic, tmp_path, body_model):
+    """With the default device set to "meta", any tensor the method creates without an
+    explicit device lands on meta and fails when it meets the model's CPU tensors: a few
+    steps of every stage, density control and the refit run clean."""
+    from cogs.train.trainer import Trainer
+
+    cfg = apply_overrides(quick_config(), [
+        *TINY, "schedule.I=3", "schedule.II=3", "schedule.III=3", "schedule.IV=3", "schedule.V=3", "schedule.VI=4",
+        "human_density.refine_every=1", "object_density.refine_every=1", "scene_density.refine_every=1",
+        "weights.plane_warmup_fraction=0.25", "refit.steps=2", "visibility_every=2", "plane_assign_every=2",
+    ])
+    scene = load_scene(small_synthetic)
+    body_model.canonical(torch.as_tensor(scene.body.shape, dtype=torch.float32))  # the third-party rig, built before
+    torch.set_default_device("meta")
+    try:
+        assert torch.empty(1).device.type == "meta"
+        trainer = Trainer(scene, cfg, tmp_path / "run", show_progress=False, device="cpu")
+        summary = trainer.run()
+    finally:
+        torch.set_default_device(None)
+    assert summary["stages"] == ["I", "II", "III", "IV", "V", "VI", "refit"]
+    assert trainer.model.device.type == "cpu"
+    events = {e["branch"] for e in trainer.state.density_events}
+    assert events == {"human", "object", "scene"}
+    assert all(p.device.type == "cpu" for p in trainer.model.parameters())
