@@ -48,10 +48,9 @@ class PoseRefit:
 
     The poses stages I-II fitted were fitted against an appearance that V-VI then kept
     changing; refitted, they agree with the appearance the held-out frames are rendered
-    with. Demo scene, held-out human IoU / crop dB: 0.897 / 24.77 -> 0.907 / 25.52, and
-    with `seed=1` 0.893 / 24.23 -> 0.907 / 25.41 (docs/architecture.md, "The six stages
-    and the pose refit"). `cogs eval`'s test-time fit uses the same loss and options on
-    the held-out frames' own images (reported apart)."""
+    with. Adopted on the demo scene, seeds 0 and 1 (docs/experiments/
+    2026-11-25-curriculum-levers.md). `cogs eval`'s test-time fit uses the same loss and
+    options on the held-out frames' own images (reported apart)."""
 
     steps: int = 20
     """Adam steps per frame; 0 skips the refit."""
@@ -59,10 +58,9 @@ class PoseRefit:
     """Learning rate of the bone rotations (radians); the translation's is half of it."""
     reg: float = 0.01
     """Weight of the squared size of the correction (radians^2 summed over bones, plus
-    m^2) against the image L1 averaged over the whole frame. Chosen on the demo scene by
-    the joints' distance to the truth after the refit (every 4th training frame; px): 1
-    1.56, 0.1 1.44, 0.03 1.40, 0.01 1.38, 0.003 1.39, 0 1.52 (the fit then follows the
-    image's noise)."""
+    m^2) against the image L1 averaged over the whole frame: without it the fit follows
+    the image's noise. Chosen on the demo scene alone (seeds 0 and 1), by the joints'
+    distance to the truth after the refit; not yet checked on other scenes."""
     pad: int = 8
     """Pixels around the person's rendered box that the fit renders (exact: nothing
     outside it changes with the pose)."""
@@ -198,8 +196,8 @@ class TrainConfig:
     compose_pose_lr_scale: float = 0.0
     """Scale of the pose corrections' learning rates in stages V-VI. The default 0 holds the
     poses the human stages fitted: the full-image loss lets the body pose trade against the
-    scene and the object, and on the demo scene it moved the held-out joints from 1.96 to
-    2.48 px (human IoU -0.012). 1 refines them at the human stages' rate."""
+    scene and the object and drift from the truth. 1 refines them at the human stages'
+    rate. Chosen on the demo scene alone (held-out joints and human IoU)."""
     human_stage_means_lr_scale: float = 1.0
     """Scale of the human's canonical-position learning rate in stages I-II. Free canonical
     positions take up part of the input poses' error instead of the pose corrections

@@ -57,11 +57,10 @@ class HumanConfig:
     """Tangent standard deviation as a fraction of the mean sample spacing."""
     seed_inset_m: float = 0.015
     """Seed centres sit this far inside the body surface, along its normal (metres). Discs
-    centred on the surface stick out of the silhouette where it is seen edge-on: on the
-    demo scene the seed posed with the true poses renders about 1 px too wide all round
-    (alpha > 0.5 vs the true mask: IoU 0.814; 0.015 m inside: 0.920), which biases the
-    mask-driven pose alignment of stage I (docs/architecture.md, "Known limits"). 0 puts
-    them on the surface (the HUGS seed)."""
+    centred on the surface stick out of the silhouette where it is seen edge-on, so the
+    seed renders wider than the body and biases the mask-driven pose alignment of stage
+    I. 0 puts them on the surface (the HUGS seed). Chosen on the demo scene alone (the
+    seed posed with the true poses against the true masks); not yet checked on others."""
     triplane_resolution: int = 128
     triplane_channels: int = 16
     triplane_padding_m: float = 0.1
@@ -82,9 +81,7 @@ class HumanConfig:
     estimator's frame-to-frame jitter. Only training frames are fitted; a held-out frame
     takes the pose its fitted neighbours interpolate to (`held_out_pose`), so it is posed
     consistently with the frames the appearance was learned on and never fitted to its
-    own image. On the synthetic benchmark (one run each): held-out human IoU 0.817 ->
-    0.841, human-crop PSNR 22.2 -> 22.8 dB; the residuals alone, with held-out frames on
-    their own inputs, gave 0.805."""
+    own image. Adopted on the demo scene (held-out human IoU and crop)."""
     held_out_neighbours: int = 2
     """Fitted training frames used on each side of a held-out frame (within
     `held_out_max_gap` frames): 2 gives a cubic interpolation, 1 a linear one."""
@@ -97,19 +94,18 @@ class HumanConfig:
     interpolated inputs. That departure is the motion the interpolation misses (signal)
     plus the estimator's jitter on that frame (noise), so the best weight is a shrinkage
     between 0 (the neighbours alone) and 1 (all of the input's detail, all of its jitter).
-    Chosen by leave-one-out on the demo scene's training frames (joints against the
-    truth, px): 0 1.74, 0.2 1.67, 0.3 1.65, 0.4 1.65, 1 1.90; the held-out human went
-    from IoU 0.893 / crop 24.43 dB to 0.897 / 24.77 (seed 1: 0.891 / 24.01 to 0.893 /
-    24.23)."""
+    Chosen by leave-one-out on the demo scene's training frames alone (joints against the
+    truth); a smoother estimator (the real clip's) prefers more of the input. Not yet
+    chosen on three scenes."""
     pose_keyframe_every: float = 12.0
     """The corrections are a smooth function of time: linear between keyframes this many
     frames apart. Every training view then updates the correction of its neighbours too,
     and held-out frames get the interpolated correction without ever being fitted. The
     estimator's error is a slow drift plus per-frame jitter (which `per_frame_pose`
-    takes), so the spacing should match the drift's time scale: the demo scene's drift
-    has a 10-frame sigma, and 12 recovers its joints best (held-out joints after stage II:
-    8 -> 1.74 px, 12 -> 1.62, 16 -> 1.69; whole runs, 8 -> 12: human IoU 0.882 -> 0.892).
-    On footage whose estimator drifts faster, lower it."""
+    takes), so the spacing should match the drift's time scale. Chosen on the demo scene
+    alone, whose synthetic estimator drifts on a ~10-frame time scale (held-out joints
+    after stage II, whole-run human IoU): it is fitted to that generator's drift. On
+    footage whose estimator drifts faster, lower it."""
     visibility_epsilon: float = 0.01
     """chi_it needs the Gaussian's summed compositing weight inside the human mask (in
     pixel units) above this."""
@@ -117,9 +113,9 @@ class HumanConfig:
     """v_i = min(1, training frames that see Gaussian i / this): a Gaussian seen in this many
     frames counts as observed and is free, and only parts few frames see are held to the
     seed. 0 gives CoGS's fraction of the training frames, whose anchor weight 1 - v_i
-    depends on the clip's length: on the demo scene the median Gaussian is seen in 44% of
-    the frames and still held at weight 0.56, which cost the held-out human 0.65 dB
-    without helping the unseen sides (docs/architecture.md, "Ablations")."""
+    depends on the clip's length (a Gaussian seen in half of a long clip's frames stays
+    held at half weight). Chosen on the demo scene alone (held-out and novel-view human);
+    not yet checked on others."""
 
 
 @dataclass

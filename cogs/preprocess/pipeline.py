@@ -393,8 +393,6 @@ class _Runner:
         return {"world_to_camera": w2c, "registered": reg, "points_xyz": xyz, "points_rgb": rgb, "static": static}, meta
 
     def _body(self, label, ui, images, pe, cam, cmeta, K):
-        import torch
-
         from cogs.body import load_body_model
         from cogs.preprocess import bodyfit as B
         from cogs.preprocess import sfm as S
@@ -441,7 +439,6 @@ class _Runner:
             "reprojection_error_max": float(np.nanmax(fit.reprojection_error)), "fit_seconds": time.perf_counter() - t0,
             **notes,
         }
-        del torch
         return {
             "world_to_camera": w2c, "registered": reg, "points_xyz": xyz.astype(np.float32), "points_rgb": rgb.astype(np.uint8),
             "shape": fit.track.shape, "pose": fit.track.pose, "transl": fit.track.transl, "joints": fit.joints_world,

@@ -13,10 +13,8 @@ Two callers:
 Only the major bones' rotations and the body translation move, pulled by the image
 alone: an L1 between the composite render and the frame. The input masks are left out on
 purpose: they are a segmenter's, a pixel or two off along the outline, and a pose fitted
-to them follows that noise (demo scene, every 4th training frame, 40 steps, regulariser
-1: joints 1.68 px -> 1.65 with the masks' BCE + Dice at weight 0.5, -> 1.56 without;
-human IoU against the truth 0.899 -> 0.917 and -> 0.927; the options' defaults,
-`PoseRefit`, reach 1.38 px / 0.942).
+to them follows that noise (measured on the demo scene:
+docs/experiments/2026-11-25-curriculum-levers.md).
 
 The fit is exact and cheap at once: it renders only a padded box around the person and
 only the frozen Gaussians that touch it (the rest cannot change a pixel of the box), and
