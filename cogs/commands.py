@@ -48,6 +48,12 @@ class Train:
     resume: bool = False
     """Continue from the run's last checkpoint (parameters, optimizer moments, density
     state, step and random state are restored)."""
+    overwrite: bool = False
+    """Replace an earlier run in --out (its files are removed, and listed, once every
+    option and the scene have been checked). Without it, a non-empty --out is refused."""
+    checkpoint: str | None = None
+    """With --resume: continue from this file of RUN/checkpoints (e.g. `stage_IV.pt`)
+    instead of the newest, `last.pt`."""
     print_config: bool = False
     """Print the fully resolved config as YAML and exit."""
     device: str = "cpu"
@@ -60,6 +66,12 @@ class Train:
         from cogs.data.scene import load_scene
         from cogs.train.trainer import Trainer
 
+        from cogs.train.run_folder import prepare_new_run
+
+        if self.resume and self.overwrite:
+            raise UserError("--resume continues the run in --out and --overwrite replaces it: choose one")
+        if self.checkpoint and not self.resume:
+            raise UserError("--checkpoint names the checkpoint --resume continues from: add --resume")
         if self.resume:
             if not (self.out / "config.yaml").exists():
                 raise UserError(f"--resume: {self.out} has no config.yaml (was it trained there?)")
@@ -73,8 +85,10 @@ class Train:
             return 0
         device = check_device(self.device)
         scene = load_scene(self.scene)
+        if not self.resume:
+            prepare_new_run(self.out, self.overwrite)
         t0 = time.perf_counter()
-        summary = Trainer(scene, cfg, self.out, resume=self.resume, device=device).run()
+        summary = Trainer(scene, cfg, self.out, resume=self.resume, device=device, checkpoint=self.checkpoint).run()
         log.info("trained in %.0f s (%s); Gaussians %s", time.perf_counter() - t0,
                  ", ".join(f"{k} {v:.0f}s" for k, v in summary["stage_seconds"].items()), summary["n_gaussians"])
         return 0
@@ -88,6 +102,11 @@ class Eval:
     """Run folder written by `cogs train`."""
     out: Path | None = None
     """Output folder (default RUN/eval)."""
+    scene: Path | None = None
+    """The scene the run was trained on, where run.json's path no longer holds it (moved).
+    It must match the run (frames, size, split)."""
+    checkpoint: str | None = None
+    """Evaluate this file of RUN/checkpoints (e.g. `stage_VI.pt`) instead of the newest."""
     renders: bool = True
     """Save composite, per-branch, ground-truth and error images of the held-out frames."""
     pose_fit_steps: int = 40
@@ -100,7 +119,7 @@ class Eval:
         from cogs.eval.evaluate import evaluate
 
         m = evaluate(self.run_dir, self.out, save_renders=self.renders, pose_fit_steps=self.pose_fit_steps,
-                     device=check_device(self.device))
+                     device=check_device(self.device), scene_dir=self.scene, checkpoint=self.checkpoint)
         print(json.dumps(m, indent=1))
         return 0
 
@@ -146,9 +165,18 @@ class Demo:
 
         device = check_device(self.device)
         if not run_is_finished(self.out):
+            from cogs.config import load_config
+            from cogs.data.scene import load_scene
+            from cogs.train.run_folder import prepare_new_run
+            from cogs.train.trainer import Trainer
+
             resume = (self.out / "checkpoints" / "last.pt").exists()
-            Train(scene_dir, self.out, preset=self.preset, set=[] if resume else self.set, resume=resume,
-                  device=device).run()
+            if resume:
+                cfg = load_config(self.out / "config.yaml")
+            else:  # the demo's own folder: a start that never reached a checkpoint is redone
+                cfg = _resolved_config(self.preset, self.set)
+                prepare_new_run(self.out, overwrite=True, keep=("scene",))
+            Trainer(load_scene(scene_dir), cfg, self.out, resume=resume, device=device).run()
         times["train"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()

@@ -170,12 +170,29 @@ class Model(torch.nn.Module):
 
 def read_checkpoint(path: str | Path) -> dict:
     """A checkpoint file's payload, read without unpickling code (`weights_only`). A
-    damaged or foreign file is a `UserError` naming it."""
+    damaged or foreign file is a `UserError` naming it and the newest readable checkpoint
+    beside it, if any."""
     path = Path(path)
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # a truncated zip, garbage, or a pickle of arbitrary objects
-        raise UserError(f"{path}: not a readable cogs checkpoint ({type(e).__name__}: {str(e).splitlines()[0][:200]})") from None
+        msg = f"{path}: not a readable cogs checkpoint ({type(e).__name__}: {str(e).splitlines()[0][:160]})"
+        alt = _newest_readable(path)
+        if alt is not None:
+            msg += (f". The newest readable checkpoint beside it is {alt.name}: `cogs train --resume --checkpoint "
+                    f"{alt.name}` continues from it, `cogs eval --checkpoint {alt.name}` evaluates it")
+        raise UserError(msg) from None
+
+
+def _newest_readable(bad: Path) -> Path | None:
+    others = sorted((p for p in bad.parent.glob("*.pt") if p != bad), key=lambda p: p.stat().st_mtime, reverse=True)
+    for p in others:
+        try:
+            torch.load(p, map_location="cpu", weights_only=True)
+            return p
+        except Exception:
+            continue
+    return None
 
 
 # -- runs trained before the model was saved whole ----------------------------------------

@@ -49,6 +49,7 @@ def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, li
     from cogs.config import preset as get_preset
     from cogs.data.scene import load_scene
     from cogs.eval.evaluate import evaluate
+    from cogs.train.run_folder import prepare_new_run
     from cogs.train.trainer import Trainer, run_is_finished
 
     assert seeds and len(set(seeds)) == len(seeds), seeds
@@ -63,6 +64,8 @@ def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, li
         if trained:
             resume = (run / "checkpoints" / "last.pt").exists()
             cfg = load_config(run / "config.yaml") if resume else apply_overrides(get_preset(preset), sets)
+            if not resume:  # the ablation's own folder: a start that never reached a checkpoint is redone
+                prepare_new_run(run, overwrite=True)
             Trainer(load_scene(scene_dir), cfg, run, resume=resume, device=device).run()
         saved = run / "eval" / "metrics.json"
         m = read_json(saved) if saved.exists() and not trained else evaluate(run, save_renders=False, device=device)

@@ -36,7 +36,7 @@ def _mean_metrics(rows: list[dict], notes: list[str], what: str) -> dict:
         vals = [r[k] for r in rows if r.get(k) is not None and math.isfinite(r[k])]
         out[k] = float(np.mean(vals)) if vals else None
         if not vals and rows:
-            notes.append(f"{what}.{k}: not computable ({'no frames' if not rows else 'unavailable for every frame'})")
+            notes.append(f"{what}.{k}: not computable (unavailable for every frame)")
     return out
 
 
@@ -75,55 +75,59 @@ def _numpy(x: torch.Tensor) -> np.ndarray:
     return a
 
 
-def load_run(run: Path, device: str = "cpu"):
+def load_run(run: Path, device: str = "cpu", scene_dir: Path | None = None, checkpoint: str | None = None):
     """(model, config, scene) of a run folder: the model from its last checkpoint (no
-    images read), the scene its run.json names."""
+    images read), the scene its run.json names (or `scene_dir`), checked against the
+    fingerprint the run recorded of the scene it trained on."""
     from cogs.config import load_config
     from cogs.data.scene import load_scene
     from cogs.model import Model
+    from cogs.train.run_folder import check_fingerprint
 
     run = Path(run)
-    model = Model.load(run, device=device)
-    info = read_json(run / "run.json") if (run / "run.json").exists() else {}
-    if not info.get("scene") or not Path(info["scene"]).exists():
-        raise UserError(f"{run}/run.json names scene {info.get('scene')!r}, which does not exist")
-    return model, load_config(run / "config.yaml"), load_scene(info["scene"])
+    if checkpoint is not None and not (run / "checkpoints" / checkpoint).is_file():
+        have = ", ".join(sorted(p.name for p in (run / "checkpoints").glob("*.pt"))) or "none"
+        raise UserError(f"--checkpoint {checkpoint}: no such file in {run / 'checkpoints'} (there: {have})")
+    model = Model.load(run, device=device, checkpoint=run / "checkpoints" / checkpoint if checkpoint else None)
+    info_path = run / "run.json"
+    info = read_json(info_path) if info_path.is_file() else {}
+    if scene_dir is None:
+        named = info.get("scene")
+        if not info_path.is_file():
+            raise UserError(f"{run} has no run.json naming its scene; pass the scene it was trained on with --scene")
+        if not named or not Path(named).exists():
+            raise UserError(f"{info_path} names scene {named!r}, which does not exist (moved?); pass it with --scene")
+        scene_dir = Path(named)
+    scene = load_scene(scene_dir)
+    check_fingerprint(run, info.get("fingerprint"), scene)
+    return model, load_config(run / "config.yaml"), scene
 
 
-def _where(run: Path) -> dict:
-    """{"stage", "step"}: where the run's last checkpoint stands."""
-    path = run / "checkpoints" / "last.json"
-    if path.exists():
-        return read_json(path)
+def _progress(run: Path, names: list[str], model, checkpoint: str | None) -> tuple[dict, dict]:
+    """({"stage", "step"}, summary) of the checkpoint evaluated: the newest from
+    last.json and train_summary.json where they describe it, else from its run state."""
+    if checkpoint is None and (run / "checkpoints" / "last.json").is_file() and (run / "train_summary.json").is_file():
+        return read_json(run / "checkpoints" / "last.json"), read_json(run / "train_summary.json")
     from cogs.train import checkpoint as ckpt
 
-    state = ckpt.load(run / "checkpoints" / "last.pt")["run_state"]
-    return {"stage": state.stage, "step": state.step}
-
-
-def _summary(run: Path, names: list[str], model) -> dict:
-    """The run's train_summary.json; for an unfinished run, the same from its checkpoint."""
-    path = run / "train_summary.json"
-    if path.exists():
-        return read_json(path)
-    from cogs.train import checkpoint as ckpt
-
-    state = ckpt.load(run / "checkpoints" / "last.pt")["run_state"]
-    return {"stages": names[: state.stage], "train_seconds": sum(state.stage_seconds.values()),
-            "stage_seconds": dict(state.stage_seconds), "n_gaussians": model.counts()}
+    state = ckpt.load(run / "checkpoints" / (checkpoint or "last.pt"))["run_state"]
+    summary = {"stages": names[: state.stage], "train_seconds": sum(state.stage_seconds.values()),
+               "stage_seconds": dict(state.stage_seconds), "n_gaussians": model.counts()}
+    return {"stage": state.stage, "step": state.step}, summary
 
 
 def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose_fit_steps: int = 40,
-             show_progress: bool = True, device: str = "cpu") -> dict:
+             show_progress: bool = True, device: str = "cpu", scene_dir: Path | None = None,
+             checkpoint: str | None = None) -> dict:
     from cogs.train.stages import stage_names
 
     run = Path(run)
     out = Path(out) if out else run / "eval"
-    model, cfg, scene = load_run(run, device)
+    model, cfg, scene = load_run(run, device, scene_dir, checkpoint)
     gt = scene.gt
     notes: list[str] = []
     names = stage_names(cfg)
-    where = _where(run)
+    where, summary = _progress(run, names, model, checkpoint)
     if where["stage"] < len(names):
         msg = (f"{run} is unfinished: it stopped in stage {names[where['stage']]} after {where['step']} "
                f"steps; these numbers are of that state (`cogs train --resume --out {run}` finishes it)")
@@ -184,7 +188,7 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
         }
         notes.append("test_time_pose_fit: the body pose of each held-out frame fitted to that frame (appearance, "
                      "object and scene frozen), the Anim-NeRF/InstantAvatar protocol; the top-level numbers use no test image")
-    metrics.update(_summary(run, names, model))
+    metrics.update(summary)
     metrics["notes"] = _summarise_notes(notes)
     write_json(out / "metrics.json", metrics)
     return metrics

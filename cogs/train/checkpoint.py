@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from cogs.errors import UserError
 from cogs.model import read_checkpoint
 
 
@@ -97,6 +98,10 @@ def load(path: Path) -> dict:
     return _restore(read_checkpoint(path))
 
 
-def load_last(folder: Path) -> dict | None:
-    path = Path(folder) / "last.pt"
+def load_last(folder: Path, name: str | None = None) -> dict | None:
+    """The newest checkpoint (`last.pt`), or the one named; None when there is none."""
+    path = Path(folder) / (name or "last.pt")
+    if name is not None and not path.is_file():
+        have = ", ".join(sorted(p.name for p in Path(folder).glob("*.pt"))) or "none"
+        raise UserError(f"--checkpoint {name}: no such file in {folder} (there: {have})")
     return load(path) if path.exists() else None

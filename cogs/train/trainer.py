@@ -60,7 +60,7 @@ def run_is_finished(run: Path) -> bool:
 
 class Trainer:
     def __init__(self, scene: Scene, cfg: TrainConfig, out: Path, resume: bool = False, show_progress: bool = True,
-                 device: str | torch.device = "cpu"):
+                 device: str | torch.device = "cpu", checkpoint: str | None = None):
         self.scene, self.cfg, self.out = scene, cfg, Path(out)
         self.show_progress = show_progress
         self.device = torch.device(device)
@@ -86,12 +86,15 @@ class Trainer:
 
         warmup()
         if resume:
-            self._resume()
+            self._resume(checkpoint)
         else:
             save_config(cfg, self.out / "config.yaml")
             from cogs.data.io import write_json
 
-            write_json(self.out / "run.json", {"scene": str(Path(scene.root).resolve()) if scene.root else None, "preset": cfg.preset})
+            from cogs.train.run_folder import scene_fingerprint
+
+            write_json(self.out / "run.json", {"scene": str(Path(scene.root).resolve()) if scene.root else None,
+                                               "preset": cfg.preset, "fingerprint": scene_fingerprint(scene)})
 
     # -- branches and optimizers ----------------------------------------------------------
     def _ensure_branches(self, spec: StageSpec) -> None:
@@ -341,9 +344,9 @@ class Trainer:
         }
         ckpt.save(self.out / "checkpoints", payload, tag)
 
-    def _resume(self) -> None:
+    def _resume(self, name: str | None = None) -> None:
         folder = self.out / "checkpoints"
-        payload = ckpt.load_last(folder)
+        payload = ckpt.load_last(folder, name)
         if payload is None:
             raise UserError(f"--resume: no checkpoint in {folder} (start without --resume)")
         self.state = payload["run_state"]
