@@ -213,7 +213,8 @@ class RenderInit:
     def run(self) -> int:
         import numpy as np
 
-        from cogs.branches.build import build_human, build_object, build_scene
+        from cogs.branches.base import REGISTRY
+        from cogs.branches.build import build_branch
         from cogs.data.io import write_image
         from cogs.data.scene import load_scene
         from cogs.eval.evaluate import _numpy, render_frame
@@ -222,8 +223,7 @@ class RenderInit:
 
         scene = load_scene(self.scene)
         cfg = _resolved_config(self.preset, [])
-        built = [build_human(scene, cfg.branches, cfg.backend), build_object(scene, cfg.branches, cfg.backend),
-                 build_scene(scene, cfg.branches)]
+        built = [build_branch(name, scene, cfg.branches, cfg.backend) for name in REGISTRY]
         model = Model({b.name: b for b in built if b is not None}, backend=cfg.backend)
         rows = []
         for t in np.linspace(0, scene.n_frames - 1, self.frames).round().astype(int):

@@ -197,3 +197,17 @@ def build_scene(scene: Scene, cfg: BranchesConfig) -> SceneBranch:
     sb = SceneBranch.from_points(scene.points_xyz, scene.points_rgb, cfg.scene, planes, device=CPU)
     log.info("scene: %d Gaussians from sparse points, %d planes", len(sb), len(sb.planes))
     return sb
+
+
+def build_branch(name: str, scene: Scene, cfg: BranchesConfig, backend: str = "auto", seeded: bool = True,
+                 generator: torch.Generator | None = None):
+    """The named branch initialised from `scene` (None where the scene has nothing for it).
+    `seeded` False gives the ablation's unseeded start (human: a cloud in the body's box;
+    object: a random cloud round its centre, drawn from `generator`)."""
+    if name == "human":
+        return build_human(scene, cfg, backend, random_seed=not seeded)
+    if name == "object":
+        return build_object(scene, cfg, backend, randomise=None if seeded else generator)
+    if name == "scene":
+        return build_scene(scene, cfg)
+    raise KeyError(f"no initialisation for a branch named {name!r}")

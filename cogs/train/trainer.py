@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from cogs.branches.base import REGISTRY
-from cogs.branches.build import build_human, build_object, build_scene
+from cogs.branches.build import build_branch
 from cogs.branches.human import compute_visibility
 from cogs.config import TrainConfig, save_config
 from cogs.data.scene import Scene
@@ -103,16 +103,12 @@ class Trainer:
         need = set()
         for o in spec.objectives:
             need |= set(RENDERS[o] or REGISTRY)
-        cfg, scene = self.cfg, self.scene
+        cfg = self.cfg
         backend = "cpu" if cfg.backend == "gsplat" else cfg.backend  # initialisation runs on the host
-        build = {
-            "human": lambda: build_human(scene, cfg.branches, backend, random_seed=not cfg.use_human_seed),
-            "object": lambda: build_object(scene, cfg.branches, backend, randomise=None if cfg.use_object_seed else self.gen),
-            "scene": lambda: build_scene(scene, cfg.branches),
-        }
+        seeded = {"human": cfg.use_human_seed, "object": cfg.use_object_seed}
         for name in REGISTRY:
             if name in need and self.model.get(name) is None:
-                branch = build[name]()
+                branch = build_branch(name, self.scene, cfg.branches, backend, seeded.get(name, True), self.gen)
                 if branch is not None:
                     self.model.add(branch.to(self.device))
 
