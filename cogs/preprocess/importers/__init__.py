@@ -4,7 +4,7 @@
     cogs import humannerf DIR --out SCENE    HumanNeRF / HOSNeRF subject
 
 Each importer reads only what its layout documents (see docs/datasets.md), loads pickles
-through the restricted unpickler (`cogs.preprocess.safe_pickle`), and writes a scene that
+through the restricted unpickler (`cogs.data.safe_pickle`), and writes a scene that
 passes `cogs check`. Bodies are retargeted onto the free Anny model from the SMPL joints by
 default; `--body-model smpl` keeps SMPL parameters (needs the licensed model file).
 """

@@ -13,7 +13,7 @@ Layout read (one subject folder, as HumanNeRF's `prepare_dataset.py` writes it):
                                 (24, 3), "tpose_joints": (24, 3)}}: world = R(Rh) x_body + Th
     canonical_joints.pkl        {"joints": (24, 3)} zero-pose joints of the mean shape
 
-All pickles go through `cogs.preprocess.safe_pickle`. HumanNeRF's rays pass through integer
+All pickles go through `cogs.data.safe_pickle`. HumanNeRF's rays pass through integer
 pixel coordinates; cogs puts pixel centres at +0.5, so the principal point is shifted by
 half a pixel (the geometry of every pixel is unchanged). The layout has no SfM points: a
 ground plane under the feet is guessed (`common.ground_plane_points`). The split is the
@@ -42,7 +42,7 @@ from cogs.preprocess.importers.common import (
     require,
     write_scene,
 )
-from cogs.preprocess.safe_pickle import load_pickle
+from cogs.data.safe_pickle import load_pickle
 
 log = logging.getLogger(__name__)
 

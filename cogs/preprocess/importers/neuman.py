@@ -47,7 +47,7 @@ from cogs.preprocess.importers.common import (
     similarity_parts,
     write_scene,
 )
-from cogs.preprocess.safe_pickle import load_npy, load_pickle
+from cogs.data.safe_pickle import load_npy, load_pickle
 
 log = logging.getLogger(__name__)
 
