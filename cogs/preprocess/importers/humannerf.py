@@ -28,6 +28,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from cogs.data.io import mask_from_values
+from cogs.data.safe_pickle import load_pickle
 from cogs.data.scene import CameraTrack
 from cogs.errors import UserError
 from cogs.geometry.rotations import axis_angle_to_rotmat
@@ -42,7 +44,6 @@ from cogs.preprocess.importers.common import (
     require,
     write_scene,
 )
-from cogs.data.safe_pickle import load_pickle
 
 log = logging.getLogger(__name__)
 
@@ -114,8 +115,8 @@ def import_humannerf(
             raise UserError(f"{where}: `extrinsics` rotation is not a rotation (a scaled world is not supported)")
         dist = cam.get("distortions")
         rgb = read_rgb(next((img_dir / f"{f}{e}" for e in _IMAGE_EXTS if (img_dir / f"{f}{e}").is_file())))
-        human = read_gray(_mask_path(mask_dir, f)) > 127
-        obj = read_gray(_mask_path(obj_dir, f)) > 127 if obj_dir is not None else None
+        human = mask_from_values(read_gray(_mask_path(mask_dir, f)))
+        obj = mask_from_values(read_gray(_mask_path(obj_dir, f))) if obj_dir is not None else None
         for m, what in ((human, mask_dir), (obj, obj_dir)):
             if m is not None and m.shape != rgb.shape[:2]:
                 raise UserError(f"{what}/{f}: mask is {m.shape[1]}x{m.shape[0]}, image is {rgb.shape[1]}x{rgb.shape[0]}")

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cogs.data.safe_pickle import load_npy, load_pickle
 from cogs.data.scene import CameraTrack
 from cogs.errors import UserError
 from cogs.preprocess.importers.common import (
@@ -47,7 +48,6 @@ from cogs.preprocess.importers.common import (
     similarity_parts,
     write_scene,
 )
-from cogs.data.safe_pickle import load_npy, load_pickle
 
 log = logging.getLogger(__name__)
 
