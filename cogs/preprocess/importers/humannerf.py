@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from cogs.data.io import mask_from_values
+from cogs.data.outdir import check_out_folder
 from cogs.data.safe_pickle import load_pickle
 from cogs.data.scene import CameraTrack
 from cogs.errors import UserError
@@ -72,8 +73,11 @@ def import_humannerf(
     out: str | Path,
     body_model: str = "anny",
     smpl_model: Path | None = None,
+    overwrite: bool = False,
 ) -> Path:
-    """Import one HumanNeRF/HOSNeRF subject folder `src` as a native scene in `out`."""
+    """Import one HumanNeRF/HOSNeRF subject folder `src` as a native scene in `out` (an
+    existing `out` is replaced only with `overwrite`, once the new scene is complete)."""
+    check_out_folder(Path(out), overwrite=overwrite)
     root = Path(src)
     if not root.is_dir():
         raise UserError(f"{root}: not a folder (expected a HumanNeRF-layout subject)")
@@ -201,7 +205,7 @@ def import_humannerf(
             "principal_point_shift_px": 0.5,
         },
     )
-    return write_scene(data, Path(out), body_model, smpl_model)
+    return write_scene(data, Path(out), body_model, smpl_model, overwrite=overwrite)
 
 
 def _rh_from_matrix(value, where: str) -> np.ndarray:
