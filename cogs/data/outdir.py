@@ -84,10 +84,10 @@ def check_out_folder(path: Path, option: str = "--out", overwrite: bool = False,
 def check_out_file(path: Path, suffixes: tuple[str, ...], option: str = "--out") -> None:
     """Before any work: `path` can be written as a file of one of `suffixes` (an existing
     file there is replaced, as a re-run expects). UserError naming the option otherwise."""
-    if path.suffix.lower() not in suffixes:
-        raise UserError(f"{option} {path}: unknown extension {path.suffix or '(none)'!r}; use one of {', '.join(suffixes)}")
     if path.is_dir():
         raise UserError(f"{option} {path} is an existing folder; {option} names the file to write")
+    if path.suffix.lower() not in suffixes:
+        raise UserError(f"{option} {path}: unknown extension {path.suffix or '(none)'!r}; use one of {', '.join(suffixes)}")
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise UserError(f"{option} {path}: {parent} is a file, not a folder")
