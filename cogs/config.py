@@ -453,8 +453,8 @@ def apply_overrides(cfg: TrainConfig, overrides: list[str]) -> TrainConfig:
             here = ".".join(parts[: depth + 1])
             if name not in fields:
                 retired = (cls.__name__, name) in RETIRED
-                problems.append(f"{item}: `{here}` is not a setting" + (f" any more ({RETIRED[(cls.__name__, name)]})" if retired
-                                                                        else _suggest(name, fields)))
+                problems.append(f"{item}: `{here}` is not a setting (no field {name!r} in {cls.__name__})"
+                                + (f"; it was removed: {RETIRED[(cls.__name__, name)]}" if retired else _suggest(name, fields)))
                 break
             default = fields[name]
             last = depth == len(parts) - 1

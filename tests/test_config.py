@@ -42,7 +42,7 @@ def test_every_problem_is_listed_in_one_message():
     assert problems == [
         "schedule=5: `schedule` is a section, not a value; set one of its fields (I, II, III, IV, V, VI, "
         "single_stage), e.g. --set schedule.I=...",
-        "schedul.I=3: `schedul` is not a setting; did you mean `schedule`?",
+        "schedul.I=3: `schedul` is not a setting (no field 'schedul' in TrainConfig); did you mean `schedule`?",
         "weights.l1=abc: `weights.l1` must be a number, got 'abc'",
         "schedule.III: must not be negative, got -10",
         "branches.human.n_gaussians: must be positive, got 0",

@@ -261,7 +261,7 @@ CASES = [
     C("--set an unknown backend", nothing, "train --scene {ws}/scene --out {ws}/new_run --set backend=nonsense", ["backend: unknown 'nonsense'"], code=2),
     C("--set no Gaussians", nothing, "train --scene {ws}/scene --out {ws}/new_run --set branches.human.n_gaussians=0", ["branches.human.n_gaussians: must be positive, got 0"], code=2),
     C("--set a negative stage", nothing, "train --scene {ws}/scene --out {ws}/new_run --set schedule.III=-100", ["schedule.III: must not be negative, got -100"], code=2),
-    C("--set a misspelt setting", nothing, "train --scene {ws}/scene --out {ws}/new_run --set schedul.I=5", ["`schedul` is not a setting; did you mean `schedule`?"], code=2),
+    C("--set a misspelt setting", nothing, "train --scene {ws}/scene --out {ws}/new_run --set schedul.I=5", ["`schedul` is not a setting (no field 'schedul' in TrainConfig); did you mean `schedule`?"], code=2),
     C("config.yaml a bare string", config_yaml("hello"), "train --scene {ws}/scene --out {ws}/run --resume", ["{ws}/run/config.yaml", "holds 'hello'"], code=2),
     C("config.yaml only a preset", config_yaml("preset: quick\n"), "train --scene {ws}/scene --out {ws}/run --resume", ["{ws}/run/config.yaml", "missing settings: schedule"], code=2),
     # SMPL model files
