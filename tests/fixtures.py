@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import os
 from pathlib import Path
 
 import numpy as np
@@ -73,3 +75,20 @@ def make_tiny_scene(root: Path, n_frames: int = 6, width: int = 40, height: int 
                              images=images[:2], human_masks=human[:2], object_masks=obj[:2], depth=depth[:2]),
         )
     return save_scene(scene, root)
+
+
+def tree_hash(root: Path) -> str:
+    """Names, modes and contents of everything under `root` (links not followed)."""
+    h = hashlib.sha256()
+    for dirpath, dirnames, filenames in sorted(os.walk(root)):
+        dirnames.sort()
+        for name in sorted(dirnames + filenames):
+            p = Path(dirpath) / name
+            st = p.lstat()
+            h.update(f"{p.relative_to(root)}|{st.st_mode:o}".encode())
+            if p.is_file() and not p.is_symlink():
+                try:
+                    h.update(p.read_bytes())
+                except PermissionError:  # a case made it unreadable: its mode is hashed
+                    pass
+    return h.hexdigest()

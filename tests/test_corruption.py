@@ -31,8 +31,7 @@ import pytest
 from PIL import Image
 
 from cogs.data.io import write_image, write_mask
-from tests.fixtures import make_tiny_scene
-from tests.test_output_folders import tree_hash
+from tests.fixtures import make_tiny_scene, tree_hash
 
 REPO = Path(__file__).resolve().parents[1]
 ROOT = os.geteuid() == 0 if hasattr(os, "geteuid") else False

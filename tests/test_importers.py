@@ -305,8 +305,7 @@ def test_humannerf_smpl_body_keeps_smpl_params_with_rh_th_folded_in(tmp_path, mo
 
 
 def test_import_never_writes_over_an_existing_scene_unless_told_to(tmp_path, motion):
-    from tests.fixtures import make_tiny_scene
-    from tests.test_output_folders import tree_hash
+    from tests.fixtures import make_tiny_scene, tree_hash
 
     joints, w2c = motion
     src = tmp_path / "subject"

@@ -3,8 +3,6 @@ work: `cogs preprocess`, `cogs synth`, the demo's scene and `cogs render-init`."
 
 from __future__ import annotations
 
-import hashlib
-import os
 from pathlib import Path
 
 import numpy as np
@@ -13,21 +11,7 @@ import pytest
 from cogs.cli import main
 from cogs.data.validate import check_scene
 from cogs.errors import UserError
-from tests.fixtures import make_tiny_scene
-
-
-def tree_hash(root: Path) -> str:
-    """Names, modes and contents of everything under `root` (links not followed)."""
-    h = hashlib.sha256()
-    for dirpath, dirnames, filenames in sorted(os.walk(root)):
-        dirnames.sort()
-        for name in sorted(dirnames + filenames):
-            p = Path(dirpath) / name
-            st = p.lstat()
-            h.update(f"{p.relative_to(root)}|{st.st_mode:o}".encode())
-            if p.is_file() and not p.is_symlink():
-                h.update(p.read_bytes())
-    return h.hexdigest()
+from tests.fixtures import make_tiny_scene, tree_hash
 
 
 def entries(folder: Path) -> list[str]:
