@@ -253,6 +253,8 @@ CASES = [
     C("gt/novel view of a frame that is not there", planes("scene/gt/novel/cameras.json", lambda o: o["frames"][0].update(frame=6)), CHECK,
       ["gt/novel/cameras.json (frame v000): `frame` must be the index of the scene frame the view shows (0..5), got 6"]),
     C("scene folder missing", nothing, "check --scene {ws}/nowhere", ["nowhere: scene folder does not exist"]),
+    C("scene folder named like rich markup", lambda ws: shutil.copytree(ws / "scene", ws / "s[red]") and (ws / "s[red]" / "points.ply").unlink(),
+      "check --scene {ws}/s[red]", ["{ws}/s[red]: 1 problem(s)", "points.ply: missing"]),
     # training settings, before anything is written
     C("--set a section to a value", nothing, "train --scene {ws}/scene --out {ws}/new_run --set schedule=5", ["`schedule` is a section, not a value"], code=2),
     C("--set a cadence to 0", nothing, "train --scene {ws}/scene --out {ws}/new_run --set checkpoint_every=0 visibility_every=0",

@@ -77,7 +77,7 @@ class Synth:
                 write_preview(scene, st.path / "preview.png")
         scene.root = self.out
         if st.replaced:
-            console.print(f"replaced {st.replaced} in {self.out}", highlight=False)
+            console.print(f"replaced {st.replaced} in {self.out}", markup=False, highlight=False)
         t2 = time.perf_counter()
         console.print(
             f"[green]wrote[/green] {self.out}: {scene.n_frames} frames {scene.width}x{scene.height}, "
