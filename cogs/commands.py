@@ -138,9 +138,9 @@ class Demo:
             _warn_if_scene_differs(scene_dir, self.frames, self.seed)
         else:
             synth.run()
-        problems = check_scene(scene_dir)
-        if problems:  # the generator's own output: a bug in cogs
-            raise AssertionError(f"the synthesized scene failed validation: {problems[0]}")
+            problems = check_scene(scene_dir)
+            if problems:  # the generator's own output: a bug in cogs
+                raise AssertionError(f"the synthesized scene failed validation: {problems[0]}")
         times["synth"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
