@@ -35,12 +35,14 @@ class Check:
     """Scene folder (the one holding scene.json)."""
 
     def run(self) -> int:
+        from rich.markup import escape
+
         from cogs.data.validate import check_scene
         from cogs.log import console
 
         problems = check_scene(self.scene)
         if problems:
-            console.print(f"[red]{self.scene}: {len(problems)} problem(s)[/red]")
+            console.print(f"[red]{escape(str(self.scene))}: {len(problems)} problem(s)[/red]", soft_wrap=True)
             for p in problems:
                 console.print(f"  - {p}", markup=False, highlight=False, soft_wrap=True)
             return 1
@@ -48,7 +50,7 @@ class Check:
 
         s = load_scene(self.scene, validate=False)
         console.print(
-            f"[green]ok[/green] {self.scene}: {s.n_frames} frames {s.width}x{s.height}, "
+            f"[green]ok[/green] {escape(str(self.scene))}: {s.n_frames} frames {s.width}x{s.height}, "
             f"body model {s.body.model}, object {'yes' if s.has_object else 'no'}, "
             f"{len(s.points_xyz)} points, train/test {len(s.split['train'])}/{len(s.split['test'])}"
             + (", ground truth" if s.gt is not None else "")

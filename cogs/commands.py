@@ -144,20 +144,30 @@ class Demo:
     """Where to train, evaluate and render: `cpu`, or `cuda` / `cuda:N`."""
 
     def run(self) -> int:
+        from cogs.data.synth.command import Synth, reusable_synthetic_scene
         from cogs.data.validate import check_scene
         from cogs.log import console
 
         times: dict[str, float] = {}
         t_all = time.perf_counter()
+        # Every option is checked before any work; a scene the demo did not write is never replaced.
+        if self.out.exists() and not self.out.is_dir():
+            raise UserError(f"--out {self.out} is an existing file; --out names the demo's folder")
+        _resolved_config(self.preset, self.set)
         scene_dir = self.out / "scene"
+        synth = Synth(out=scene_dir, frames=self.frames, seed=self.seed, preview=True)
+        reuse = reusable_synthetic_scene(scene_dir)
+        if not reuse:
+            synth.check_options()
         t0 = time.perf_counter()
-        if (scene_dir / "scene.json").exists() and not check_scene(scene_dir):
+        if reuse:
             log.info("reusing the synthetic scene in %s", scene_dir)
+            _warn_if_scene_differs(scene_dir, self.frames, self.seed)
         else:
-            _synthesize(scene_dir, frames=self.frames, seed=self.seed, preview=True)
-        problems = check_scene(scene_dir)
-        if problems:
-            raise UserError(f"the synthesized scene failed validation: {problems[0]}")
+            synth.run()
+            problems = check_scene(scene_dir)
+            if problems:  # the generator's own output: a bug in cogs
+                raise AssertionError(f"the synthesized scene failed validation: {problems[0]}")
         times["synth"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -206,12 +216,19 @@ class RenderInit:
 
     scene: Path
     out: Path = Path("init.png")
+    """The PNG (or JPEG) to write."""
     frames: int = 4
     """How many frames (spread over the clip)."""
     preset: Literal["quick", "paper"] = "quick"
 
     def run(self) -> int:
         import numpy as np
+
+        from cogs.data.outdir import check_out_file
+
+        if self.frames < 1:
+            raise UserError(f"--frames must be at least 1, got {self.frames}")
+        check_out_file(self.out, (".png", ".jpg", ".jpeg"))
 
         from cogs.branches.base import REGISTRY
         from cogs.branches.build import build_branch
@@ -254,6 +271,15 @@ def check_device(name: str) -> str:
     if index >= torch.cuda.device_count():
         raise UserError(f"--device {name}: only {torch.cuda.device_count()} CUDA device(s) here")
     return name
+
+
+def _warn_if_scene_differs(scene_dir: Path, frames: int, seed: int) -> None:
+    from cogs.data.io import read_json
+
+    cfg = read_json(scene_dir / "scene.json").get("source", {}).get("config", {})
+    if isinstance(cfg, dict) and (cfg.get("frames"), cfg.get("seed")) != (frames, seed):
+        log.warning("the existing scene has %s frames and seed %s (asked: %d and %d); it is reused as it is: "
+                    "delete %s to have it written again", cfg.get("frames"), cfg.get("seed"), frames, seed, scene_dir)
 
 
 def _fmt(x: float | None) -> str:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -254,6 +255,177 @@ def preset(name: str) -> TrainConfig:
     return PRESETS[name]()
 
 
+# -- checking ---------------------------------------------------------------------------
+#
+# Every setting is checked before anything is written: `check_config` lists what is wrong
+# with a TrainConfig; `apply_overrides` (`--set`) and `load_config` (a run's config.yaml)
+# are strict about keys and types and raise one `UserError` listing every problem, theirs
+# and `check_config`'s together.
+
+CADENCES = (
+    "checkpoint_every", "visibility_every", "log_every", "plane_assign_every",
+    "human_density.refine_every", "object_density.refine_every", "scene_density.refine_every",
+)
+"""Settings that are a period in steps: a step count modulo them must exist (>= 1)."""
+
+POSITIVE = CADENCES + (
+    "branches.human.n_gaussians", "branches.human.triplane_resolution", "branches.human.triplane_channels",
+    "branches.human.mlp_width", "branches.object.hull_resolution", "branches.object.max_gaussians",
+    "branches.scene.knn", "branches.color_init_frames", "branches.human.pose_keyframe_every",
+    "branches.object.frames_per_keyframe", "branches.scene.plane_loss_scale_m",
+)
+"""Settings that must be > 0 (every other number must be >= 0, except where noted)."""
+
+SIGNED = ("branches.human.seed_inset_m",)
+"""Numbers that may be negative."""
+
+FRACTIONS = ("branches.human.held_out_input_weight", "object_appearance_warmup")
+"""Settings in [0, 1] besides every `*_fraction`."""
+
+MAX_SH_DEGREE = 3
+
+ADDED: dict[tuple[str, str], str] = {
+    ("TrainConfig", "refit"): "the pose refit after stage VI (2026-11-25)",
+    ("LossWeights", "compose_rgb"): "the compositional RGB term's weight, 1 before it was a setting (2026-11-25)",
+}
+"""(dataclass, key) of settings added after runs were written: an older config.yaml that
+lacks one takes its default, which reproduces what that run did (or, for a new stage,
+what `cogs train --resume` then adds)."""
+
+RETIRED: dict[tuple[str, str], str] = {
+    ("Density", "reset_opacity_every"): "opacity resets were removed",
+}
+"""(dataclass, key) of settings older runs' config.yaml may hold that this cogs no longer
+has: accepted and ignored when the dataclass has no such field any more."""
+
+
+def _fields(cls) -> dict[str, Any]:
+    """Field name -> its default value (which gives its type; every field has one)."""
+    default = cls()
+    return {f.name: getattr(default, f.name) for f in dataclasses.fields(cls)}
+
+
+def _kind(default: Any) -> str:
+    if dataclasses.is_dataclass(default):
+        return "section"
+    for t, name in ((bool, "true or false"), (int, "an integer"), (float, "a number"), (str, "a string")):
+        if isinstance(default, t):
+            return name
+    raise AssertionError(f"config field of unsupported type {type(default).__name__}")
+
+
+def _coerce(default: Any, value: Any) -> tuple[Any, bool]:
+    """`value` as the type of `default` (int <- integral float, float <- int or a numeric
+    string, which YAML 1.1 makes of "2e-3"); (value, ok)."""
+    if isinstance(default, bool):
+        return value, isinstance(value, bool)
+    if isinstance(value, bool):
+        return value, False
+    if isinstance(default, int):
+        if isinstance(value, float) and value.is_integer():
+            return int(value), True
+        if isinstance(value, str):
+            try:
+                f = float(value)
+            except ValueError:
+                return value, False
+            return (int(f), True) if f.is_integer() else (value, False)
+        return value, isinstance(value, int)
+    if isinstance(default, float):
+        if isinstance(value, str):
+            try:
+                return float(value), True
+            except ValueError:
+                return value, False
+        return (float(value), True) if isinstance(value, (int, float)) else (value, False)
+    if isinstance(default, str):
+        return value, isinstance(value, str)
+    raise AssertionError(type(default))
+
+
+def _type_ok(default: Any, value: Any) -> bool:
+    """Whether `value`, as it sits in a TrainConfig, has the type of `default`."""
+    if isinstance(default, bool) or isinstance(value, bool):
+        return isinstance(default, bool) and isinstance(value, bool)
+    if isinstance(default, int):
+        return isinstance(value, int)
+    if isinstance(default, float):
+        return isinstance(value, (int, float))
+    return isinstance(value, type(default))
+
+
+def _suggest(key: str, known) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(str(key), list(known), n=1)
+    return f"; did you mean `{close[0]}`?" if close else ""
+
+
+def check_config(cfg: TrainConfig) -> list[str]:
+    """Every problem with `cfg`: wrong types, sections replaced by values, negative counts,
+    cadences below 1, fractions outside [0, 1], non-finite numbers, unknown backend, preset
+    or plane loss. Empty = usable. A stage's iteration count of 0 is legal (the stage is
+    skipped)."""
+    from cogs.geometry.planes import PLANE_LOSS_KINDS
+    from cogs.render.api import BACKENDS
+
+    problems: list[str] = []
+
+    def walk(obj: Any, cls, prefix: str) -> None:
+        for name, default in _fields(cls).items():
+            path = f"{prefix}{name}"
+            value = getattr(obj, name, None)
+            kind = _kind(default)
+            if kind == "section":
+                if not isinstance(value, type(default)):
+                    problems.append(f"{path}: is a section of settings, got {value!r}")
+                else:
+                    walk(value, type(default), f"{path}.")
+                continue
+            if not _type_ok(default, value):
+                problems.append(f"{path}: must be {kind}, got {value!r}")
+                continue
+            if isinstance(value, bool) or isinstance(value, str):
+                continue
+            if isinstance(value, float) and not math.isfinite(value):
+                problems.append(f"{path}: must be a finite number, got {value!r}")
+            elif path in CADENCES and value < 1:
+                problems.append(f"{path}: must be at least 1 (a period in steps), got {value!r}")
+            elif path in POSITIVE and value <= 0:
+                problems.append(f"{path}: must be positive, got {value!r}")
+            elif path not in SIGNED and value < 0:
+                problems.append(f"{path}: must not be negative, got {value!r}")
+            elif (name.endswith("_fraction") or path in FRACTIONS) and value > 1:
+                problems.append(f"{path}: is a fraction, must be in [0, 1], got {value!r}")
+
+    walk(cfg, TrainConfig, "")
+    if isinstance(cfg.backend, str) and cfg.backend not in BACKENDS:
+        problems.append(f"backend: unknown {cfg.backend!r}; known: {', '.join(BACKENDS)}")
+    if isinstance(cfg.preset, str) and cfg.preset not in PRESETS:
+        problems.append(f"preset: unknown {cfg.preset!r}; known: {', '.join(PRESETS)}")
+    branches = getattr(cfg, "branches", None)
+    for part in ("scene", "object"):
+        sh = getattr(getattr(branches, part, None), "sh_degree", 0)
+        if isinstance(sh, int) and not isinstance(sh, bool) and sh > MAX_SH_DEGREE:
+            problems.append(f"branches.{part}.sh_degree: at most {MAX_SH_DEGREE}, got {sh}")
+    kind = getattr(getattr(branches, "scene", None), "plane_loss_kind", "huber")
+    if isinstance(kind, str) and kind not in PLANE_LOSS_KINDS:
+        problems.append(f"branches.scene.plane_loss_kind: unknown {kind!r}; known: {', '.join(PLANE_LOSS_KINDS)}")
+    return problems
+
+
+def _raise(where: str, problems: list[str]) -> None:
+    if problems:
+        lines = "\n".join(f"  - {p}" for p in problems)
+        raise UserError(f"{where}: {len(problems)} problem(s):\n{lines}")
+
+
+def validate_config(cfg: TrainConfig, where: str = "config") -> TrainConfig:
+    """`cfg` itself, or a `UserError` listing every problem `check_config` finds."""
+    _raise(where, check_config(cfg))
+    return cfg
+
+
 # -- overrides and (de)serialisation ------------------------------------------------------
 
 
@@ -262,64 +434,120 @@ def to_dict(cfg: Any) -> Any:
 
 
 def apply_overrides(cfg: TrainConfig, overrides: list[str]) -> TrainConfig:
-    """`path.to.field=value` strings (value parsed as YAML) applied to a copy of cfg."""
+    """`path.to.field=value` strings (value parsed as YAML) applied to a copy of cfg; the
+    result is checked (`check_config`). One `UserError` lists every problem."""
     cfg = copy.deepcopy(cfg)
+    problems: list[str] = []
     for item in overrides:
         if "=" not in item:
-            raise UserError(f"--set expects path.to.field=value, got {item!r}")
+            problems.append(f"{item!r}: expected path.to.field=value")
+            continue
         path, raw = item.split("=", 1)
-        obj = cfg
         parts = path.strip().split(".")
-        for p in parts[:-1]:
-            if not dataclasses.is_dataclass(obj) or not hasattr(obj, p):
-                raise UserError(f"--set {item!r}: no config section {p!r}")
-            obj = getattr(obj, p)
-        leaf = parts[-1]
-        if not dataclasses.is_dataclass(obj) or leaf not in {f.name for f in dataclasses.fields(obj)}:
-            raise UserError(f"--set {item!r}: no field {leaf!r} in {type(obj).__name__}")
-        old = getattr(obj, leaf)
-        value = yaml.safe_load(raw)
-        if isinstance(old, bool) and not isinstance(value, bool):
-            raise UserError(f"--set {item!r}: {leaf} must be true or false")
-        if isinstance(old, (int, float)) and not isinstance(old, bool):
-            if isinstance(value, str):  # YAML 1.1 reads "2e-3" as a string
-                try:
-                    value = float(value)
-                except ValueError:
-                    pass
-            if not isinstance(value, (int, float)) or isinstance(value, bool):
-                raise UserError(f"--set {item!r}: {leaf} must be a number")
-            value = type(old)(value)
-        setattr(obj, leaf, value)
+        obj, cls = cfg, TrainConfig
+        for depth, name in enumerate(parts):
+            fields = _fields(cls)
+            here = ".".join(parts[: depth + 1])
+            if name not in fields:
+                retired = (cls.__name__, name) in RETIRED
+                problems.append(f"{item}: `{here}` is not a setting (no field {name!r} in {cls.__name__})"
+                                + (f"; it was removed: {RETIRED[(cls.__name__, name)]}" if retired else _suggest(name, fields)))
+                break
+            default = fields[name]
+            last = depth == len(parts) - 1
+            if dataclasses.is_dataclass(default):
+                if last:
+                    names = ", ".join(_fields(type(default)))
+                    problems.append(f"{item}: `{here}` is a section, not a value; set one of its fields "
+                                    f"({names}), e.g. --set {here}.{next(iter(_fields(type(default))))}=...")
+                    break
+                obj, cls = getattr(obj, name), type(default)
+                continue
+            if not last:
+                problems.append(f"{item}: `{here}` is a value, not a section")
+                break
+            try:
+                value = yaml.safe_load(raw)
+            except yaml.YAMLError as e:
+                problems.append(f"{item}: the value is not valid YAML ({e})")
+                break
+            coerced, good = _coerce(default, value)
+            if not good:
+                problems.append(f"{item}: `{here}` must be {_kind(default)}, got {value!r}")
+                break
+            setattr(obj, name, coerced)
+    problems += check_config(cfg)
+    _raise("--set", problems)
     return cfg
 
 
-def from_dict(data: dict) -> TrainConfig:
-    """Inverse of `to_dict` (used when resuming and evaluating a run)."""
+def from_dict(data: Any, where: str = "config") -> TrainConfig:
+    """Inverse of `to_dict`, strict: every setting must be present, known and of its type,
+    and the result must pass `check_config`; one `UserError` (prefixed by `where`) lists
+    every problem. Settings in `RETIRED` are ignored."""
+    problems: list[str] = []
+    missing: list[str] = []
 
-    def build(cls, values):
-        kwargs = {}
-        for f in dataclasses.fields(cls):
-            if f.name not in values:
-                continue
-            v = values[f.name]
-            ftype = f.type if not isinstance(f.type, str) else None
-            default = getattr(cls(), f.name) if ftype is None else None
-            target = type(default) if default is not None else ftype
-            if dataclasses.is_dataclass(target):
-                kwargs[f.name] = build(target, v)
+    def build(cls, values, prefix: str):
+        if not isinstance(values, dict):
+            if prefix:
+                problems.append(f"{prefix.rstrip('.')}: is a section, expected a mapping of its settings, got {values!r}")
             else:
-                kwargs[f.name] = v
+                problems.append(f"holds {values!r}, not a mapping of settings (a run's config.yaml lists every setting)")
+            return cls()
+        fields = _fields(cls)
+        kwargs = {}
+        for key, v in values.items():
+            if key not in fields:
+                if (cls.__name__, key) in RETIRED:
+                    continue
+                problems.append(f"{prefix}{key}: unknown setting{_suggest(key, fields)}")
+                continue
+            default = fields[key]
+            if dataclasses.is_dataclass(default):
+                kwargs[key] = build(type(default), v, f"{prefix}{key}.")
+            else:
+                coerced, ok = _coerce(default, v)
+                if not ok:
+                    problems.append(f"{prefix}{key}: must be {_kind(default)}, got {v!r}")
+                    continue
+                kwargs[key] = coerced
+        missing.extend(f"{prefix}{k}" for k in fields if k not in values and (cls.__name__, k) not in ADDED)
         return cls(**kwargs)
 
-    return build(TrainConfig, data)
+    cfg = build(TrainConfig, data, "")
+    if missing and isinstance(data, dict):
+        shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more" if len(missing) > 8 else "")
+        problems.append(f"missing settings: {shown} (a run's config.yaml lists every setting; cogs never fills "
+                        "them in from a preset's defaults)")
+    problems += check_config(cfg)  # the settings that were read; the others kept their defaults
+    _raise(where, problems)
+    return cfg
 
 
 def save_config(cfg: TrainConfig, path) -> None:
-    with open(path, "w") as f:
+    from cogs.data.io import atomic_writer
+
+    with atomic_writer(path) as f:
         yaml.safe_dump(to_dict(cfg), f, sort_keys=False)
 
 
 def load_config(path) -> TrainConfig:
-    with open(path) as f:
-        return from_dict(yaml.safe_load(f))
+    """A run's config.yaml, strictly (see `from_dict`); `UserError` naming the file when it
+    is missing, unreadable, not YAML, incomplete or wrong."""
+    from pathlib import Path
+
+    path = Path(path)
+    if path.is_dir():
+        raise UserError(f"{path}: is a folder, expected the run's config.yaml")
+    try:
+        text = path.read_bytes()
+    except FileNotFoundError:
+        raise UserError(f"{path}: missing (every run folder holds its config.yaml)") from None
+    except OSError as e:
+        raise UserError(f"{path}: cannot be read ({e.strerror or e})") from None
+    try:
+        data = yaml.safe_load(text)
+    except (yaml.YAMLError, ValueError, RecursionError) as e:
+        raise UserError(f"{path}: not valid YAML ({e})") from None
+    return from_dict(data, where=str(path))

@@ -2,11 +2,23 @@
 
 from __future__ import annotations
 
+import hashlib
+import os
 from pathlib import Path
 
 import numpy as np
 
-from cogs.data.scene import BodyTrack, CameraTrack, ObjectTrack, PlaneSpec, Scene, default_frame_ids, save_scene
+from cogs.data.scene import (
+    BodyTrack,
+    CameraTrack,
+    GroundTruth,
+    NovelViews,
+    ObjectTrack,
+    PlaneSpec,
+    Scene,
+    default_frame_ids,
+    save_scene,
+)
 from cogs.geometry.camera import intrinsics_from_fov, look_at
 
 # `cogs train --set` overrides for a run of every stage in seconds (on `small_synthetic`).
@@ -19,8 +31,11 @@ TINY = [
 ]
 
 
-def make_tiny_scene(root: Path, n_frames: int = 6, width: int = 40, height: int = 30, seed: int = 0) -> Path:
-    """A valid scene: random images, disc masks, a camera arc, zero Anny poses, a box track."""
+def make_tiny_scene(root: Path, n_frames: int = 6, width: int = 40, height: int = 30, seed: int = 0,
+                    ground_truth: bool = False) -> Path:
+    """A valid scene: random images, disc masks, a camera arc, zero Anny poses, a box track;
+    with `ground_truth`, also a gt/ folder (the inputs as truth, a constant depth, the floor
+    plane, and two novel views)."""
     rng = np.random.default_rng(seed)
     ids = default_frame_ids(n_frames)
     K = intrinsics_from_fov(width, height, 55.0)
@@ -49,5 +64,31 @@ def make_tiny_scene(root: Path, n_frames: int = 6, width: int = 40, height: int 
         points_rgb=rng.integers(0, 255, (50, 3), dtype=np.uint8),
         planes=[PlaneSpec(np.array([0.0, 0.0, 1.0]), 0.0, "floor")],
     )
-    scene.set_pixels(rng.integers(0, 255, (n_frames, height, width, 3), dtype=np.uint8), human, obj)
+    images = rng.integers(0, 255, (n_frames, height, width, 3), dtype=np.uint8)
+    scene.set_pixels(images, human, obj)
+    if ground_truth:
+        depth = np.full((n_frames, height, width), 2.5, np.float32)
+        scene.gt = GroundTruth(
+            cameras=scene.cameras, body=scene.body, object=scene.object, human_masks=human, object_masks=obj,
+            depth=depth, planes=list(scene.planes),
+            novel=NovelViews(frames=np.array([0, n_frames - 1]), cameras=CameraTrack(K=scene.cameras.K[:2], world_to_camera=w2c[::-1][:2].copy()),
+                             images=images[:2], human_masks=human[:2], object_masks=obj[:2], depth=depth[:2]),
+        )
     return save_scene(scene, root)
+
+
+def tree_hash(root: Path) -> str:
+    """Names, modes and contents of everything under `root` (links not followed)."""
+    h = hashlib.sha256()
+    for dirpath, dirnames, filenames in sorted(os.walk(root)):
+        dirnames.sort()
+        for name in sorted(dirnames + filenames):
+            p = Path(dirpath) / name
+            st = p.lstat()
+            h.update(f"{p.relative_to(root)}|{st.st_mode:o}".encode())
+            if p.is_file() and not p.is_symlink():
+                try:
+                    h.update(p.read_bytes())
+                except PermissionError:  # a case made it unreadable: its mode is hashed
+                    pass
+    return h.hexdigest()

@@ -304,6 +304,23 @@ def test_humannerf_smpl_body_keeps_smpl_params_with_rh_th_folded_in(tmp_path, mo
         assert np.allclose(J[t].numpy(), expected, atol=1e-4)
 
 
+def test_import_never_writes_over_an_existing_scene_unless_told_to(tmp_path, motion):
+    from tests.fixtures import make_tiny_scene, tree_hash
+
+    joints, w2c = motion
+    src = tmp_path / "subject"
+    write_humannerf(src, joints, w2c, T=4, with_object=False)
+    scene = make_tiny_scene(tmp_path / "scene")
+    before = tree_hash(scene)
+    with pytest.raises(UserError, match=r"already holds a cogs scene 'tiny' \(6 frames\).*--overwrite"):
+        import_humannerf(src, scene)
+    assert tree_hash(scene) == before
+    import_humannerf(src, scene, overwrite=True)
+    assert load_scene(scene).n_frames == 4  # replaced whole: none of the old scene's frames are left
+    assert sorted(p.name for p in (scene / "images").iterdir()) == [f"frame_{i:06d}.png" for i in range(4)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene", "subject"]
+
+
 def test_cli_import_reports_errors_without_traceback(tmp_path, motion, capsys):
     from cogs.cli import main
 

@@ -166,7 +166,7 @@ def test_a_recomputed_step_invalidates_the_steps_that_read_it(tmp_path):
         runner._step(ui, 1, "a", {}, [], compute("a"))
         runner._step(ui, 2, "b", {}, ["a"], compute("b"))
     assert calls == ["a", "b"]  # the second pass is all cached
-    (tmp_path / ".cache" / "a.json").unlink()  # step a lost: recomputed with the same options
+    (runner.cache.root / "a.json").unlink()  # step a lost: recomputed with the same options
     runner.cache.keys.clear()
     runner._step(ui, 1, "a", {}, [], compute("a"))
     runner._step(ui, 2, "b", {}, ["a"], compute("b"))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cogs.errors import UserError
-from cogs.preprocess.safe_pickle import load_npy, load_pickle
+from cogs.data.safe_pickle import load_npy, load_pickle
 
 
 def same(a, b) -> bool:
@@ -169,3 +169,108 @@ def test_build_on_a_class_is_refused(tmp_path):
     (tmp_path / "x.pkl").write_bytes(raw)
     with pytest.raises(UserError):
         load_pickle(tmp_path / "x.pkl")
+
+
+# -- body-model files (SMPL / SMPL-X .pkl) --------------------------------------------------
+
+
+def _official_style_smpl_pickle(data: dict, monkeypatch, protocol: int = 2) -> bytes:
+    """`data` pickled the way the official SMPL release stores it: the dense arrays as plain
+    chumpy arrays (`chumpy.ch.Ch`, state = chumpy's own `__getstate__`), the joint regressor
+    as a scipy csc matrix under its pre-1.8 module path, numpy under its 1.x path. chumpy is
+    not installed: a stand-in class pickles under its name."""
+    import sys
+    import types
+
+    import scipy.sparse as sp
+
+    class Ch:
+        def __init__(self, x):
+            self.x = np.asarray(x, np.float64)
+            self._dirty_vars, self._itr, self._depends_on_deps = {"x"}, None, {}
+            self._make_dense, self._make_sparse = False, False
+
+    Ch.__module__, Ch.__qualname__ = "chumpy.ch", "Ch"
+    chumpy, ch = types.ModuleType("chumpy"), types.ModuleType("chumpy.ch")
+    ch.Ch, chumpy.ch = Ch, ch
+    monkeypatch.setitem(sys.modules, "chumpy", chumpy)
+    monkeypatch.setitem(sys.modules, "chumpy.ch", ch)
+    out = {k: Ch(v) for k, v in data.items() if k in ("v_template", "shapedirs", "posedirs", "weights")}
+    out.update(J_regressor=sp.csc_matrix(data["J_regressor"]), kintree_table=data["kintree_table"], f=data["f"],
+               bs_type="lrotmin", bs_style="lbs")
+    raw = pickle.dumps(out, protocol=protocol)
+    assert b"chumpy.ch" in raw and b"scipy.sparse._csc" in raw
+    return raw.replace(b"scipy.sparse._csc", b"scipy.sparse.csc").replace(b"numpy._core.", b"numpy.core.")
+
+
+@pytest.mark.parametrize("protocol", [0, 2])
+def test_official_smpl_pickle_reads_chumpy_as_arrays_and_the_sparse_regressor(tmp_path, monkeypatch, protocol):
+    import scipy.sparse as sp
+
+    from cogs.data.safe_pickle import load_model_pickle
+    from tests.test_retarget import write_toy_smpl_model
+
+    data = write_toy_smpl_model(tmp_path / "toy.npz")
+    path = tmp_path / "SMPL_NEUTRAL.pkl"
+    path.write_bytes(_official_style_smpl_pickle(data, monkeypatch, protocol))
+    got = load_model_pickle(path)
+    for k in ("v_template", "shapedirs", "posedirs", "weights"):
+        assert type(got[k]) is np.ndarray and got[k].dtype == np.float64 and np.array_equal(got[k], data[k]), k
+    assert sp.issparse(got["J_regressor"]) and got["J_regressor"].format == "csc"
+    assert np.array_equal(got["J_regressor"].toarray(), data["J_regressor"])
+    assert got["bs_style"] == "lbs"
+
+
+def test_smpl_body_from_an_official_style_pickle_equals_the_npz(tmp_path, monkeypatch):
+    pytest.importorskip("smplx", reason="smplx (optional extra cogs[smpl]) is not installed")
+    import torch
+
+    from cogs.body.smpl_body import SmplBody
+    from tests.test_retarget import write_toy_smpl_model
+
+    data = write_toy_smpl_model(tmp_path / "toy.npz")
+    (tmp_path / "SMPL_NEUTRAL.pkl").write_bytes(_official_style_smpl_pickle(data, monkeypatch))
+    a, b = SmplBody(tmp_path / "SMPL_NEUTRAL.pkl").canonical(), SmplBody(tmp_path / "toy.npz").canonical()
+    assert torch.allclose(a.vertices, b.vertices) and torch.allclose(a.joints, b.joints)
+
+
+def test_a_malicious_smpl_model_file_never_runs_and_is_named(tmp_path, monkeypatch):
+    from cogs.body import load_body_model
+    from cogs.body.smpl_body import set_smpl_model_path
+
+    marker = tmp_path / "PWNED"
+    path = tmp_path / "SMPL_NEUTRAL.pkl"
+    path.write_bytes(pickle.dumps({"v_template": np.zeros((4, 3)), "f": _CallsSystem(marker)}, protocol=2))
+    set_smpl_model_path(None)
+    monkeypatch.setenv("COGS_SMPL_MODEL", str(path))
+    try:
+        with pytest.raises(UserError) as e:
+            load_body_model("smpl")
+    finally:
+        set_smpl_model_path(None)
+    assert str(path) in str(e.value) and "posix.system" in str(e.value)
+    assert not marker.exists()
+
+
+@pytest.mark.parametrize("payload,name", [
+    (b"\x80\x02cchumpy.ch_ops\nadd\n)\x81q\x00.", "chumpy.ch_ops.add"),  # an expression, not a stored array
+    (b"\x80\x02cchumpy.ch\nCh\n)\x81}X\x01\x00\x00\x00xX\x03\x00\x00\x00abcsb.", "chumpy array"),
+    (b"\x80\x02cscipy.sparse._csc\ncsc_matrix\n)\x81}X\x04\x00\x00\x00dataK\x01sb.", "sparse matrix"),
+    (b"\x80\x02ccopyreg\n_reconstructor\ncposix\nsystem\ncbuiltins\nobject\nN\x87R.", "posix.system"),
+])
+def test_model_pickles_refuse_chumpy_expressions_and_malformed_records(tmp_path, payload, name):
+    from cogs.data.safe_pickle import load_model_pickle
+
+    (tmp_path / "m.pkl").write_bytes(payload)
+    with pytest.raises(UserError, match=name) as e:
+        load_model_pickle(tmp_path / "m.pkl")
+    assert "m.pkl" in str(e.value)
+
+
+def test_dataset_pickles_still_refuse_chumpy_and_sparse(tmp_path, monkeypatch):
+    from tests.test_retarget import write_toy_smpl_model
+
+    data = write_toy_smpl_model(tmp_path / "toy.npz")
+    (tmp_path / "fits.pkl").write_bytes(_official_style_smpl_pickle(data, monkeypatch))
+    with pytest.raises(UserError, match="refusing"):
+        load_pickle(tmp_path / "fits.pkl")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -73,29 +74,22 @@ def resolve_smpl_model_file(path: str | Path | None = None) -> Path:
 
 
 def _load_model_data(path: Path) -> dict:
-    """The model file's arrays. A .pkl is the user's own licensed model file, read with
-    pickle as smplx does (the original release stores chumpy arrays and a scipy sparse
-    regressor); a .npz is read without pickle."""
+    """The model file's arrays. A .pkl goes through the restricted unpickler
+    (`cogs.data.safe_pickle.load_model_pickle`): the official releases' chumpy arrays come
+    back as numpy arrays and the sparse regressor as a scipy matrix, and nothing in the file
+    is run (a pickle can name any function). A .npz is read without pickle."""
     if path.suffix == ".npz":
         try:
             with np.load(path, allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
-        except (OSError, ValueError) as e:
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
             raise UserError(f"{path}: not a readable SMPL .npz model ({e})") from None
-    import pickle
+    from cogs.data.safe_pickle import load_model_pickle
 
-    try:
-        with open(path, "rb") as f:
-            return dict(pickle.load(f, encoding="latin1"))
-    except ModuleNotFoundError as e:
-        raise UserError(
-            f"{path}: this SMPL .pkl needs the module `{e.name}` to load (the original release stores "
-            "chumpy arrays). Install chumpy, or convert the file once to .npz: load it where chumpy "
-            "is available and save every entry with numpy.savez (numpy.array(v), "
-            "J_regressor.toarray() for the sparse regressor)."
-        ) from None
-    except (OSError, pickle.UnpicklingError, EOFError, ValueError) as e:
-        raise UserError(f"{path}: not a readable SMPL model file ({e})") from None
+    data = load_model_pickle(path)
+    if not isinstance(data, dict):
+        raise UserError(f"{path}: not an SMPL model (the pickle holds a {type(data).__name__}, not a dict of arrays)")
+    return dict(data)
 
 
 class SmplBody(BodyModel):
@@ -127,8 +121,8 @@ class SmplBody(BodyModel):
                     num_betas=N_BETAS,
                     create_betas=False, create_global_orient=False, create_body_pose=False, create_transl=False,
                 )
-        except (ValueError, TypeError, IndexError) as e:
-            raise UserError(f"{self.model_file}: smplx could not build SMPL from it ({e})") from None
+        except (ValueError, TypeError, IndexError, KeyError, AttributeError, RuntimeError) as e:
+            raise UserError(f"{self.model_file}: smplx could not build SMPL from it ({type(e).__name__}: {e})") from None
         self._smpl.requires_grad_(False)
         parents = self._smpl.parents.long()
         if len(parents) != len(SMPL_JOINT_NAMES):

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
+import uuid
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -28,10 +29,24 @@ def write_image(path: str | Path, rgb: np.ndarray) -> None:
     Image.fromarray(rgb).save(path, optimize=False, compress_level=3)
 
 
+def mask_values(im: Image.Image) -> np.ndarray:
+    """[H, W] uint8 grey values of a mask image (colour and palette images as grey)."""
+    return np.asarray(im.convert("L"))
+
+
+def mask_from_values(values: np.ndarray) -> np.ndarray:
+    """[H, W] bool from a mask's grey values: 0/255 masks count > 127 as inside, masks
+    stored as 0/1 (their largest value is 1) count 1 as inside."""
+    values = np.asarray(values)
+    if values.dtype == bool:
+        return values
+    return values > (0 if values.size and values.max() <= 1 else 127)
+
+
 def read_mask(path: str | Path) -> np.ndarray:
-    """[H, W] bool from an 8-bit mask PNG (non-zero = inside)."""
+    """[H, W] bool from an 8-bit mask PNG, stored as 0/255 or as 0/1 (see `mask_from_values`)."""
     with Image.open(path) as im:
-        return np.asarray(im.convert("L")) > 127
+        return mask_from_values(mask_values(im))
 
 
 def write_mask(path: str | Path, mask: np.ndarray) -> None:
@@ -40,19 +55,40 @@ def write_mask(path: str | Path, mask: np.ndarray) -> None:
 
 
 def read_json(path: str | Path):
-    with open(path) as f:
-        return json.load(f)
+    """The JSON value in `path` (UTF-8, -16 or -32, as `json.loads` detects it)."""
+    with open(path, "rb") as f:
+        return json.loads(f.read())
+
+
+@contextmanager
+def atomic_writer(path: str | Path, mode: str = "w", fsync: bool = False):
+    """Open a temporary file beside `path` for writing and rename it onto `path` when the
+    block ends without an error (a reader never sees half a file; on an error the temporary
+    file is removed and `path` is left as it was).
+
+    The file gets the permissions any new file of the user gets (0666 less the umask), like
+    the images beside it: `tempfile.mkstemp` would make it 0600."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:12]}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, mode) as f:
+            yield f
+            if fsync:
+                f.flush()
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def write_json(path: str | Path, obj) -> None:
     """Write atomically (temp file + rename) with stable formatting."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
+    with atomic_writer(path) as f:
         json.dump(obj, f, indent=1, default=_json_default)
         f.write("\n")
-    os.replace(tmp, path)
 
 
 def _json_default(x):
@@ -79,11 +115,12 @@ def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray) -> None
     PlyData([PlyElement.describe(v, "vertex")], byte_order="<").write(str(path))
 
 
-def read_points_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """(xyz [P, 3] float32, rgb [P, 3] uint8); colour defaults to grey when absent."""
+def read_points_ply(path) -> tuple[np.ndarray, np.ndarray]:
+    """(xyz [P, 3] float32, rgb [P, 3] uint8) from a PLY path or binary stream; colour
+    defaults to grey when absent."""
     from plyfile import PlyData
 
-    v = PlyData.read(str(path))["vertex"]
+    v = PlyData.read(path if hasattr(path, "read") else str(path))["vertex"]
     xyz = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float32)
     names = v.data.dtype.names
     if all(c in names for c in ("red", "green", "blue")):

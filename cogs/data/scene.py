@@ -35,11 +35,9 @@ from cogs.data.io import (
     write_mask,
     write_points_ply,
 )
+from cogs.data.validate import FORMAT, VERSION, check_scene
 from cogs.errors import UserError
 from cogs.geometry.camera import Camera
-
-FORMAT = "cogs-scene"
-VERSION = 1
 
 
 class SceneError(UserError):
@@ -99,7 +97,8 @@ class BodyTrack:
     @classmethod
     def load(cls, path: Path) -> "BodyTrack":
         with np.load(path, allow_pickle=False) as z:
-            return cls(model=str(z["model"]), shape=z["shape"], pose=z["pose"], transl=z["transl"])
+            return cls(model=str(z["model"]), shape=z["shape"].astype(np.float32), pose=z["pose"].astype(np.float32),
+                       transl=z["transl"].astype(np.float32))
 
 
 @dataclass
@@ -334,7 +333,6 @@ def load_scene(root: str | Path, validate: bool = True) -> Scene:
     """Load a scene folder; with `validate`, raise SceneError listing every problem."""
     root = Path(root)
     if validate:
-        from cogs.data.validate import check_scene
 
         problems = check_scene(root)
         if problems:
@@ -370,13 +368,13 @@ def _load_gt(root: Path, ids: list[str], has_object: bool) -> GroundTruth:
     def masks(kind: str, names: list[str], base: Path) -> np.ndarray:
         return np.stack([read_mask(base / "masks" / kind / f"{n}.png") for n in names])
 
-    with np.load(root / "depth.npz") as z:
+    with np.load(root / "depth.npz", allow_pickle=False) as z:
         depth = z["depth"].astype(np.float32)
     novel = None
     if (root / "novel" / "cameras.json").exists():
         cams_json = read_json(root / "novel" / "cameras.json")
         vids = [f["id"] for f in cams_json["frames"]]
-        with np.load(root / "novel" / "depth.npz") as z:
+        with np.load(root / "novel" / "depth.npz", allow_pickle=False) as z:
             ndepth = z["depth"].astype(np.float32)
         novel = NovelViews(
             frames=np.array([f["frame"] for f in cams_json["frames"]], dtype=np.int64),

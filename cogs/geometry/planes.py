@@ -174,6 +174,9 @@ def assign_to_planes(
     return out
 
 
+PLANE_LOSS_KINDS = ("huber", "cauchy")
+
+
 def point_to_plane_loss(
     means: Tensor,
     plane_normals: Tensor,
@@ -206,5 +209,5 @@ def point_to_plane_loss(
     elif kind == "cauchy":
         rho = 0.5 * scale * scale * torch.log1p((r / scale) ** 2)
     else:
-        raise ValueError(f"kind must be 'huber' or 'cauchy', got {kind!r}")
+        raise ValueError(f"kind must be one of {PLANE_LOSS_KINDS}, got {kind!r}")
     return rho.mean()

@@ -23,7 +23,8 @@ class Preprocess:
     """Video file (anything FFmpeg reads) or a folder of frames (sorted by name)."""
 
     out: Path
-    """Scene folder to write (created; its .cache/ holds the intermediate steps)."""
+    """Scene folder to write. The run works in OUT.partial and renames it to OUT once cogs
+    check accepts the scene; OUT/.cache holds the intermediate steps."""
 
     stride: int = 1
     """Keep every stride-th input frame."""
@@ -110,8 +111,74 @@ class Preprocess:
     force: bool = False
     """Recompute every step, ignoring OUT/.cache."""
 
+    overwrite: bool = False
+    """Replace the scene OUT already holds (its cached steps are reused), once the new one
+    is complete. Without it an existing OUT is refused."""
+
     progress: bool = True
     """Show progress bars."""
+
+    def check_options(self) -> None:
+        """UserError naming the option, before any work or any file is written."""
+        import math
+
+        from cogs.body import MODELS
+        from cogs.data.outdir import check_out_folder
+        from cogs.errors import UserError
+
+        src = Path(self.input)
+        if not src.exists():
+            raise UserError(f"input {src} does not exist")
+        positive = {"--stride": self.stride, "--max-side": self.max_side, "--body-iterations": self.body_iterations,
+                    "--preview-frames": self.preview_frames, "--exhaustive-max-frames": self.exhaustive_max_frames}
+        if self.limit is not None:
+            positive["--limit"] = self.limit
+        for option, v in positive.items():
+            if v < 1:
+                raise UserError(f"{option} must be at least 1, got {v}")
+        if self.max_side < 64:
+            raise UserError(f"--max-side {self.max_side} is too small: frames need at least 64 pixels on their longer "
+                            "side for the person to be found")
+        for option, v in {"--start": self.start, "--object-box-frame": self.object_box_frame,
+                          "--mask-dilate-px": self.mask_dilate_px, "--max-planes": self.max_planes}.items():
+            if v < 0:
+                raise UserError(f"{option} must be >= 0, got {v}")
+        for option, v in {"--focal-factor": self.focal_factor, "--focal-px": self.focal_px}.items():
+            if v is not None and (not math.isfinite(v) or v <= 0):
+                raise UserError(f"{option} must be a positive number, got {v:g}")
+        for option, v, lo, hi in (("--min-registered", self.min_registered, 0.0, 1.0),
+                                  ("--person-threshold", self.person_threshold, 0.0, 1.0)):
+            if not (math.isfinite(v) and lo <= v <= hi):
+                raise UserError(f"{option} must be between {lo:g} and {hi:g}, got {v:g}")
+        if not math.isfinite(self.min_parallax) or self.min_parallax < 0:
+            raise UserError(f"--min-parallax must be >= 0, got {self.min_parallax:g}")
+        if self.object_box is not None and self.object_masks is not None:
+            raise UserError("give either --object-box or --object-masks, not both")
+        if self.object_box is not None:
+            x0, y0, x1, y1 = self.object_box
+            if not all(math.isfinite(v) for v in self.object_box) or not (x1 > x0 and y1 > y0):
+                raise UserError(f"--object-box {x0:g} {y0:g} {x1:g} {y1:g} must be x0 y0 x1 y1 with x1 > x0 and y1 > y0")
+        if self.object_masks is not None and not Path(self.object_masks).is_dir():
+            raise UserError(f"--object-masks {self.object_masks} is not a folder")
+        if self.sam2_checkpoint is not None and not Path(self.sam2_checkpoint).is_file():
+            raise UserError(f"--sam2-checkpoint {self.sam2_checkpoint} does not exist")
+        if self.body_model not in MODELS:
+            raise UserError(f"--body-model {self.body_model!r} is unknown; known: {', '.join(sorted(MODELS))}")
+        if self.body_model == "smpl":
+            from cogs.body.smpl_body import resolve_smpl_model_file
+
+            resolve_smpl_model_file()
+        if self.name is not None and not self.name.strip():
+            raise UserError("--name must not be empty")
+        out, inp = Path(self.out).resolve(), src.resolve()
+        if out == inp or out.is_relative_to(inp) or inp.is_relative_to(out):
+            raise UserError(f"--out {self.out} and the input {src} overlap; write the scene somewhere else")
+        try:  # a folder holding nothing but a cache is what older versions left on failure: resumed
+            only_cache = out.is_dir() and [p.name for p in out.iterdir()] == [".cache"]
+        except OSError:
+            only_cache = False
+        if not only_cache:
+            check_out_folder(Path(self.out), overwrite=self.overwrite, hint="its cached steps are reused")
 
     def run(self) -> int:
         from cogs.log import console

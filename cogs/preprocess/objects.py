@@ -62,6 +62,8 @@ def read_mask_folder(folder: str | Path, n_frames: int, size: tuple[int, int], s
     import cv2
     from PIL import Image
 
+    from cogs.data.io import mask_from_values, mask_values
+
     folder = Path(folder)
     if not folder.is_dir():
         raise UserError(f"--object-masks {folder} is not a folder")
@@ -76,10 +78,10 @@ def read_mask_folder(folder: str | Path, n_frames: int, size: tuple[int, int], s
     for t, f in enumerate(chosen):
         try:
             with Image.open(f) as im:
-                m = np.asarray(im.convert("L"))
-        except OSError as e:
+                m = mask_from_values(mask_values(im)).astype(np.uint8)  # 0/255 and 0/1 masks alike
+        except (OSError, ValueError, SyntaxError) as e:
             raise UserError(f"cannot read mask {f}: {e}") from None
-        out[t] = cv2.resize(m, size, interpolation=cv2.INTER_NEAREST) > 127
+        out[t] = cv2.resize(m, size, interpolation=cv2.INTER_NEAREST) > 0
     return out
 
 

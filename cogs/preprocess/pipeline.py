@@ -8,6 +8,12 @@ re-run loads every step whose key still matches and recomputes from the first th
 not (an interrupted run resumes where it stopped; changing ``--object-box`` redoes the
 object masks and what depends on them, not the frames or the person). ``--force`` ignores
 the cache.
+
+Nothing is written under ``--out`` itself until the end: the run works in the sibling
+folder ``<out>.partial`` and renames it to ``--out`` only once ``cogs check`` accepts the
+scene. An existing ``--out`` is replaced only with ``--overwrite`` (its cached steps are
+reused), and only after the new scene is in place. A failed run leaves ``<out>.partial``
+holding nothing but its cache, and says so: the same command resumes from it.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -81,12 +88,24 @@ class Cache:
         return arrays, meta
 
     def save(self, step: str, key: str, arrays: dict, meta: dict, compress: bool) -> None:
+        from cogs.data.io import atomic_writer
+
         self.root.mkdir(parents=True, exist_ok=True)
         tmp = self.root / f"{step}.tmp.npz"
         (np.savez_compressed if compress else np.savez)(tmp, **arrays)
         tmp.replace(self.root / f"{step}.npz")
         # The key is written last: a step counts as done only once its data is complete.
-        (self.root / f"{step}.json").write_text(json.dumps({**meta, "key": key}, indent=1, default=_json_default))
+        # Both files are replaced, never rewritten in place: a cache may share them (hard
+        # links) with the scene it replaces.
+        with atomic_writer(self.root / f"{step}.json") as f:
+            f.write(json.dumps({**meta, "key": key}, indent=1, default=_json_default))
+
+    def n_steps(self) -> int:
+        """How many step results the folder holds."""
+        try:
+            return sum(1 for p in self.root.glob("*.json"))
+        except OSError:
+            return 0
 
     def result_id(self, meta: dict) -> str:
         return str(meta.get("result_id", meta.get("key")))
@@ -154,13 +173,99 @@ def run_preprocess(cfg) -> RunReport:
     return _Runner(cfg).run()
 
 
+PARTIAL = ".partial"
+"""Suffix of the sibling folder a run works in (`<out>.partial`)."""
+
+
 class _Runner:
     def __init__(self, cfg):
         self.cfg = cfg
-        self.out = Path(cfg.out)
+        self.final = Path(cfg.out)
+        self.out = self.final.parent / f"{self.final.name}{PARTIAL}"  # every step writes here
         self.cache = Cache(self.out / ".cache", force=cfg.force)
-        self.report = RunReport(scene=self.out, preview=self.out / "preview.png")
+        self.report = RunReport(scene=self.final, preview=self.final / "preview.png")
         self.n_steps = len(STEPS)
+
+    # -- the work folder --------------------------------------------------------------
+
+    def _prepare_work(self) -> None:
+        """`<out>.partial` holding only a cache: the one a failed run left (resumed), or a
+        new one seeded with the cache of the scene being replaced."""
+        import shutil
+
+        from cogs.data.outdir import MARKER, new_staging
+
+        work = self.out
+        if work.exists() or work.is_symlink():
+            if not (work.is_dir() and (work / MARKER).exists()):
+                raise UserError(f"{work} is in the way: cogs preprocess works in this folder and did not make what is "
+                                "there; move or delete it")
+            self._keep_only_cache()
+            work.mkdir(exist_ok=True)
+            (work / MARKER).touch()
+            if self.cache.n_steps():
+                log.info("resuming from the steps cached in %s", self.cache.root)
+            return
+        new_staging(work)
+        old = self.final / ".cache"
+        if old.is_dir() and not self.cfg.force:
+            # Hard links where possible: a step's files are only ever replaced, never rewritten.
+            self.cache.root.mkdir()
+            for f in old.iterdir():
+                if f.is_file() and f.suffix in (".json", ".npz"):
+                    try:
+                        os.link(f, self.cache.root / f.name)
+                    except OSError:
+                        shutil.copy2(f, self.cache.root / f.name)
+
+    def _keep_only_cache(self) -> None:
+        """Remove from the work folder everything but the cache (the folder goes when the
+        cache holds no finished step)."""
+        import shutil
+
+        from cogs.data.outdir import MARKER
+
+        work = self.out
+        if not work.is_dir():
+            return
+        keep = {".cache", MARKER} if self.cache.n_steps() else set()
+        for entry in work.iterdir():
+            if entry.name in keep:
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                entry.unlink(missing_ok=True)
+        if not keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+    def _failed_note(self) -> str:
+        if self.out.is_dir() and self.cache.n_steps():
+            return (f"nothing was written to {self.final}; the {self.cache.n_steps()} step(s) finished so far are cached "
+                    f"in {self.cache.root}: run the same command again to resume from them (or delete {self.out})")
+        return f"nothing was written to {self.final}"
+
+    def run(self) -> RunReport:
+        self.cfg.check_options()
+        self._prepare_work()
+        try:
+            self._run()
+            replaced = self._publish()
+        except UserError as e:
+            self._keep_only_cache()
+            raise UserError(f"{e}\n{self._failed_note()}") from None
+        except BaseException:
+            self._keep_only_cache()
+            log.error("%s", self._failed_note())
+            raise
+        if replaced:
+            log.info("replaced %s in %s", replaced, self.final)
+        return self.report
+
+    def _publish(self) -> str | None:
+        from cogs.data.outdir import put_in_place
+
+        return put_in_place(self.out, self.final)
 
     # Each step: params that define it, steps it reads, compute -> (arrays, meta).
     def _step(self, ui: _Progress, i: int, name: str, params: dict, deps: list[str], compute, compress: bool = True):
@@ -185,16 +290,9 @@ class _Runner:
         self.report.stats[name] = meta.get("stats", {})
         return arrays, meta
 
-    def run(self) -> RunReport:
+    def _run(self) -> None:
         cfg = self.cfg
         src = Path(cfg.input)
-        if not src.exists():
-            raise UserError(f"input {src} does not exist")
-        if cfg.object_box is not None and cfg.object_masks is not None:
-            raise UserError("give either --object-box or --object-masks, not both")
-        if cfg.body_model not in _known_models():
-            raise UserError(f"--body-model {cfg.body_model!r} is unknown; known: {', '.join(_known_models())}")
-        self.out.mkdir(parents=True, exist_ok=True)
         stat = src.stat()
         with _Progress(cfg.progress) as ui:
             self._ui = ui
@@ -208,6 +306,10 @@ class _Runner:
             self.source_size = tuple(fmeta["source_size"])
             self.fps = float(fmeta["fps"])
             self.source_indices = fr["source_indices"]
+            if cfg.object_box is not None:  # the box against the frames, before the steps that take long
+                from cogs.preprocess.objects import check_box
+
+                check_box(cfg.object_box, self.source_size, cfg.object_box_frame, T)
 
             pe, _ = self._step(ui, 2, "persons", {"threshold": cfg.person_threshold, "refine": cfg.refine_person_masks, "sam2": str(cfg.sam2_checkpoint)}, ["frames"], lambda lb: self._persons(lb, ui, images))
             if not pe["detected"].any():
@@ -263,11 +365,10 @@ class _Runner:
             update(1, "scene written")
             from cogs.preprocess.preview import contact_sheet
 
-            contact_sheet(self.out, self.report.preview, kp2d=pe["kp2d"], registered=bo["registered"].astype(bool), camera_method=cmeta["method"],
+            contact_sheet(self.out, self.out / "preview.png", kp2d=pe["kp2d"], registered=bo["registered"].astype(bool), camera_method=cmeta["method"],
                           radii=None if op is None else op["radii"], n_frames=cfg.preview_frames, body_model=cfg.body_model)
             update(2, str(self.report.preview))
             self.report.seconds["scene"] = time.perf_counter() - t0
-        return self.report
 
     # -- steps ----------------------------------------------------------------------
 
@@ -544,7 +645,7 @@ class _Runner:
         scene.set_pixels(images, human_masks, obj_masks)
         save_scene(scene, self.out)
         problems = check_scene(self.out)
-        if problems:  # a bug in cogs, not the user's input: keep the traceback
+        if problems:  # a bug in cogs, not the user's input: keep the traceback (the scene is never put in place)
             raise AssertionError(str(SceneError(self.out, problems)))
 
 

@@ -14,16 +14,14 @@ statistics), `rng` (every generator's state), `planes_assigned`.
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
 import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from cogs.data.io import atomic_writer, write_json
 from cogs.errors import UserError
 from cogs.model import read_checkpoint
 
@@ -76,21 +74,13 @@ def _restore(obj):
 
 def save(folder: Path, payload: dict, tag: str | None = None) -> Path:
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".last", suffix=".tmp")
-    with os.fdopen(fd, "wb") as f:
+    with atomic_writer(folder / "last.pt", "wb", fsync=True) as f:
         torch.save(_plain(payload), f)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, folder / "last.pt")
     if tag:
-        shutil.copyfile(folder / "last.pt", folder / f".{tag}.tmp")
-        os.replace(folder / f".{tag}.tmp", folder / f"{tag}.pt")
+        with atomic_writer(folder / f"{tag}.pt", "wb") as f, open(folder / "last.pt", "rb") as src:
+            shutil.copyfileobj(src, f)
     rs = payload.get("run_state")
-    info = {"stage": getattr(rs, "stage", None), "step": getattr(rs, "step", None), "tag": tag}
-    with open(folder / ".last.json.tmp", "w") as f:
-        json.dump(info, f)
-    os.replace(folder / ".last.json.tmp", folder / "last.json")
+    write_json(folder / "last.json", {"stage": getattr(rs, "stage", None), "step": getattr(rs, "step", None), "tag": tag})
     return folder / "last.pt"
 
 

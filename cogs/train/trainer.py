@@ -31,7 +31,7 @@ import torch
 from cogs.branches.base import REGISTRY
 from cogs.branches.build import build_branch
 from cogs.branches.human import compute_visibility
-from cogs.config import TrainConfig, save_config
+from cogs.config import TrainConfig, save_config, validate_config
 from cogs.data.scene import Scene
 from cogs.errors import UserError
 from cogs.model import Model, _legacy, upgrade_legacy
@@ -61,7 +61,7 @@ def run_is_finished(run: Path) -> bool:
 class Trainer:
     def __init__(self, scene: Scene, cfg: TrainConfig, out: Path, resume: bool = False, show_progress: bool = True,
                  device: str | torch.device = "cpu", checkpoint: str | None = None):
-        self.scene, self.cfg, self.out = scene, cfg, Path(out)
+        self.scene, self.cfg, self.out = scene, validate_config(cfg), Path(out)
         self.show_progress = show_progress
         self.device = torch.device(device)
         self.frames = TrainFrames(scene, self.device)

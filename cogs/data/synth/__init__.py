@@ -19,6 +19,16 @@ or `cogs synth --out out/synth --preview`.
 """
 
 from cogs.data.synth.config import NoiseConfig, SynthConfig
-from cogs.data.synth.generate import generate_scene, hosnerf_split
 
 __all__ = ["NoiseConfig", "SynthConfig", "generate_scene", "hosnerf_split"]
+
+
+def __getattr__(name: str):
+    # The generator (and the body model, scipy and the rasterizer it imports) loads on first
+    # use: every `cogs` command builds its options from this package's configs, most never
+    # generate a scene.
+    if name in ("generate_scene", "hosnerf_split"):
+        from cogs.data.synth import generate
+
+        return getattr(generate, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

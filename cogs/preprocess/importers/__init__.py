@@ -4,7 +4,7 @@
     cogs import humannerf DIR --out SCENE    HumanNeRF / HOSNeRF subject
 
 Each importer reads only what its layout documents (see docs/datasets.md), loads pickles
-through the restricted unpickler (`cogs.preprocess.safe_pickle`), and writes a scene that
+through the restricted unpickler (`cogs.data.safe_pickle`), and writes a scene that
 passes `cogs check`. Bodies are retargeted onto the free Anny model from the SMPL joints by
 default; `--body-model smpl` keeps SMPL parameters (needs the licensed model file).
 """
@@ -41,18 +41,33 @@ class Import:
     smpl_source: Literal["auto", "optimized", "4d_humans"] = "auto"
     """NeuMan only: smpl_output_optimized.pkl + alignments.npy (optimized), HUGS'
     4d_humans/smpl_optimized_aligned_scale.npz (4d_humans), or auto."""
+    overwrite: bool = False
+    """Replace what OUT already holds, once the new scene is complete (without it an
+    existing OUT is refused)."""
 
     def run(self) -> int:
+        from cogs.data.outdir import check_out_folder
+        from cogs.errors import UserError
         from cogs.log import console
 
-        if self.smpl_model is not None:
-            from cogs.body.smpl_body import set_smpl_model_path
+        # Before any work: the options, the output folder and the SMPL model file.
+        if not Path(self.dir).is_dir():
+            raise UserError(f"{self.dir}: not a folder (expected a {self.kind} dataset folder)")
+        out, src = Path(self.out).resolve(), Path(self.dir).resolve()
+        if out == src or out.is_relative_to(src) or src.is_relative_to(out):
+            raise UserError(f"--out {self.out} and the dataset folder {self.dir} overlap; write the scene somewhere else")
+        check_out_folder(Path(self.out), overwrite=self.overwrite)
+        if self.smpl_model is not None or self.body_model == "smpl":
+            from cogs.body.smpl_body import resolve_smpl_model_file, set_smpl_model_path
 
-            set_smpl_model_path(self.smpl_model)
+            resolve_smpl_model_file(self.smpl_model)  # says what to set when there is none
+            if self.smpl_model is not None:
+                set_smpl_model_path(self.smpl_model)
         if self.kind == "neuman":
-            out = import_neuman(self.dir, self.out, self.body_model, self.smpl_model, self.smpl_source)
+            out = import_neuman(self.dir, self.out, self.body_model, self.smpl_model, self.smpl_source,
+                                overwrite=self.overwrite)
         else:
-            out = import_humannerf(self.dir, self.out, self.body_model, self.smpl_model)
+            out = import_humannerf(self.dir, self.out, self.body_model, self.smpl_model, overwrite=self.overwrite)
         console.print(f"[green]imported[/green] {self.dir} -> {out}  (check it with: cogs check {out})")
         return 0
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from cogs.data.outdir import check_out_folder, staged
 from cogs.data.scene import BodyTrack, CameraTrack, ObjectTrack, Scene, save_scene
 from cogs.errors import UserError
 from cogs.geometry.camera import camera_center, project_points
@@ -509,8 +510,11 @@ class ImportedFrames:
     source: dict = field(default_factory=dict)
 
 
-def write_scene(frames: ImportedFrames, out: Path, body_model: str, smpl_model: Path | None) -> Path:
-    """Convert the body, guess what is missing (points, object pose) and save the scene."""
+def write_scene(frames: ImportedFrames, out: Path, body_model: str, smpl_model: Path | None,
+                overwrite: bool = False) -> Path:
+    """Convert the body, guess what is missing (points, object pose) and save the scene:
+    into a temporary folder, put in place as `out` once `cogs check` accepts it (an existing
+    `out` is replaced only with `overwrite`)."""
     if body_model == "smpl":
         body, body_info = smpl_body_track(frames.fits, frames.body_R, frames.body_c, smpl_model)
     elif body_model == "anny":
@@ -546,12 +550,24 @@ def write_scene(frames: ImportedFrames, out: Path, body_model: str, smpl_model: 
     )
     scene.set_pixels(frames.images, human, frames.object_masks)
     out = Path(out)
-    if (out / "scene.json").exists():
-        log.warning("overwriting the scene in %s", out)
-    save_scene(scene, out)
+    check_out_folder(out, overwrite=overwrite)
+    with staged(out, accept=_accept_imported) as st:
+        save_scene(scene, st.path)
+    scene.root = out
+    if st.replaced:
+        log.info("replaced %s in %s", st.replaced, out)
     log.info("wrote %s: %d frames %dx%d, train/test %d/%d, body %s",
              out, T, W, H, len(frames.split["train"]), len(frames.split["test"]), body.model)
     return out
+
+
+def _accept_imported(folder: Path) -> None:
+    from cogs.data.validate import check_scene
+
+    problems = check_scene(folder)
+    if problems:
+        lines = "\n".join(f"  - {p}" for p in problems[:20])
+        raise UserError(f"the imported scene fails cogs check, so it was not written ({len(problems)} problem(s)):\n{lines}")
 
 
 def _joints_from_track(body: BodyTrack, smpl_model: Path | None) -> np.ndarray:

@@ -13,7 +13,7 @@ Layout read (one subject folder, as HumanNeRF's `prepare_dataset.py` writes it):
                                 (24, 3), "tpose_joints": (24, 3)}}: world = R(Rh) x_body + Th
     canonical_joints.pkl        {"joints": (24, 3)} zero-pose joints of the mean shape
 
-All pickles go through `cogs.preprocess.safe_pickle`. HumanNeRF's rays pass through integer
+All pickles go through `cogs.data.safe_pickle`. HumanNeRF's rays pass through integer
 pixel coordinates; cogs puts pixel centres at +0.5, so the principal point is shifted by
 half a pixel (the geometry of every pixel is unchanged). The layout has no SfM points: a
 ground plane under the feet is guessed (`common.ground_plane_points`). The split is the
@@ -28,6 +28,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from cogs.data.io import mask_from_values
+from cogs.data.outdir import check_out_folder
+from cogs.data.safe_pickle import load_pickle
 from cogs.data.scene import CameraTrack
 from cogs.errors import UserError
 from cogs.geometry.rotations import axis_angle_to_rotmat
@@ -42,7 +45,6 @@ from cogs.preprocess.importers.common import (
     require,
     write_scene,
 )
-from cogs.preprocess.safe_pickle import load_pickle
 
 log = logging.getLogger(__name__)
 
@@ -71,8 +73,11 @@ def import_humannerf(
     out: str | Path,
     body_model: str = "anny",
     smpl_model: Path | None = None,
+    overwrite: bool = False,
 ) -> Path:
-    """Import one HumanNeRF/HOSNeRF subject folder `src` as a native scene in `out`."""
+    """Import one HumanNeRF/HOSNeRF subject folder `src` as a native scene in `out` (an
+    existing `out` is replaced only with `overwrite`, once the new scene is complete)."""
+    check_out_folder(Path(out), overwrite=overwrite)
     root = Path(src)
     if not root.is_dir():
         raise UserError(f"{root}: not a folder (expected a HumanNeRF-layout subject)")
@@ -114,8 +119,8 @@ def import_humannerf(
             raise UserError(f"{where}: `extrinsics` rotation is not a rotation (a scaled world is not supported)")
         dist = cam.get("distortions")
         rgb = read_rgb(next((img_dir / f"{f}{e}" for e in _IMAGE_EXTS if (img_dir / f"{f}{e}").is_file())))
-        human = read_gray(_mask_path(mask_dir, f)) > 127
-        obj = read_gray(_mask_path(obj_dir, f)) > 127 if obj_dir is not None else None
+        human = mask_from_values(read_gray(_mask_path(mask_dir, f)))
+        obj = mask_from_values(read_gray(_mask_path(obj_dir, f))) if obj_dir is not None else None
         for m, what in ((human, mask_dir), (obj, obj_dir)):
             if m is not None and m.shape != rgb.shape[:2]:
                 raise UserError(f"{what}/{f}: mask is {m.shape[1]}x{m.shape[0]}, image is {rgb.shape[1]}x{rgb.shape[0]}")
@@ -200,7 +205,7 @@ def import_humannerf(
             "principal_point_shift_px": 0.5,
         },
     )
-    return write_scene(data, Path(out), body_model, smpl_model)
+    return write_scene(data, Path(out), body_model, smpl_model, overwrite=overwrite)
 
 
 def _rh_from_matrix(value, where: str) -> np.ndarray:

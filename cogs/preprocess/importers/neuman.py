@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cogs.data.outdir import check_out_folder
+from cogs.data.safe_pickle import load_npy, load_pickle
 from cogs.data.scene import CameraTrack
 from cogs.errors import UserError
 from cogs.preprocess.importers.common import (
@@ -47,7 +49,6 @@ from cogs.preprocess.importers.common import (
     similarity_parts,
     write_scene,
 )
-from cogs.preprocess.safe_pickle import load_npy, load_pickle
 
 log = logging.getLogger(__name__)
 
@@ -159,13 +160,16 @@ def import_neuman(
     body_model: str = "anny",
     smpl_model: Path | None = None,
     smpl_source: str = "auto",
+    overwrite: bool = False,
 ) -> Path:
-    """Import one NeuMan sequence folder `src` as a native scene in `out`.
+    """Import one NeuMan sequence folder `src` as a native scene in `out` (an existing `out`
+    is replaced only with `overwrite`, once the new scene is complete).
 
     smpl_source: "optimized" (smpl_output_optimized.pkl + alignments.npy), "4d_humans"
     (HUGS' npz) or "auto": the one whose fits carry joints when only one does (needed for
     the licence-free Anny body), else "optimized" when present.
     """
+    check_out_folder(Path(out), overwrite=overwrite)
     root = Path(src)
     if not root.is_dir():
         raise UserError(f"{root}: not a folder (expected a NeuMan sequence)")
@@ -259,7 +263,7 @@ def import_neuman(
                               "frame's view ray; images of the body are unchanged" % scale_spread),
         },
     )
-    return write_scene(frames, Path(out), body_model, smpl_model)
+    return write_scene(frames, Path(out), body_model, smpl_model, overwrite=overwrite)
 
 
 def _choose_fits(root: Path, names: list[str], smpl_source: str, body_model: str) -> SmplFits:

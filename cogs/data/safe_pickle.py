@@ -22,6 +22,16 @@ Accepted:
 Refused: everything else, e.g. `os.system`, `subprocess.Popen`, `builtins.eval`,
 `builtins.getattr`, arbitrary classes, and chumpy arrays (`chumpy.ch.Ch`), for which the
 message says how to convert the file.
+
+Body-model files (`load_model_pickle`: SMPL / SMPL-X `.pkl`, the user's own licensed copy)
+additionally hold what the official releases store besides arrays: plain chumpy arrays
+(`chumpy.ch.Ch`, read as the numpy array they wrap; chumpy is never imported) and scipy
+sparse matrices (`csc_matrix`/`csr_matrix`, e.g. SMPL's `J_regressor`, rebuilt from their
+data, indices and index pointers through scipy's own checked constructor). Chumpy
+expressions (any other chumpy class) are refused: their value would have to be computed.
+
+This module sits low (cogs.data) so that both the body models and the dataset importers
+can use it.
 """
 
 from __future__ import annotations
@@ -38,7 +48,7 @@ import numpy as np
 
 from cogs.errors import UserError
 
-__all__ = ["load_pickle", "load_npy", "RefusedGlobal"]
+__all__ = ["load_pickle", "load_model_pickle", "load_npy", "RefusedGlobal"]
 
 
 class RefusedGlobal(pickle.UnpicklingError):
@@ -61,6 +71,28 @@ def _numpy_core(sub: str):
 
 class _JoblibArray:
     """Stand-in for joblib's NumpyArrayWrapper: only its state (shape, dtype, order) is used."""
+
+
+class _ChumpyArray:
+    """Stand-in for a plain `chumpy.ch.Ch`: its pickled state holds the wrapped array as `x`."""
+
+
+class _SparseMatrix:
+    """Stand-in for a scipy sparse matrix: its state (data, indices, indptr, shape) is used."""
+
+    format = "csc"
+
+
+class _CsrMatrix(_SparseMatrix):
+    format = "csr"
+
+
+def _reconstructor(cls, base, state):
+    """`copyreg._reconstructor` (protocol 0/1 pickles of plain objects), limited to the
+    stand-ins: it creates an empty instance and nothing else."""
+    if cls not in (_ChumpyArray, _SparseMatrix, _CsrMatrix) or base is not object or state is not None:
+        raise pickle.UnpicklingError(f"copyreg._reconstructor({getattr(cls, '__name__', cls)!r}, ...) is not plain data")
+    return object.__new__(cls)
 
 
 def _allowed_globals() -> dict[tuple[str, str], Any]:
@@ -96,7 +128,23 @@ def _allowed_globals() -> dict[tuple[str, str], Any]:
     return table
 
 
+def _model_globals() -> dict[tuple[str, str], Any]:
+    """What body-model pickles need on top of `_allowed_globals`."""
+    table: dict[tuple[str, str], Any] = {
+        ("chumpy.ch", "Ch"): _ChumpyArray,
+        ("copyreg", "_reconstructor"): _reconstructor,
+        ("builtins", "object"): object,
+    }
+    # scipy's module path moved (scipy.sparse.csc -> scipy.sparse._csc in 1.8).
+    for mod in ("scipy.sparse.csc", "scipy.sparse._csc", "scipy.sparse"):
+        table[(mod, "csc_matrix")] = _SparseMatrix
+    for mod in ("scipy.sparse.csr", "scipy.sparse._csr", "scipy.sparse"):
+        table[(mod, "csr_matrix")] = _CsrMatrix
+    return table
+
+
 _ALLOWED: dict[tuple[str, str], Any] | None = None
+_MODEL_ALLOWED: dict[tuple[str, str], Any] | None = None
 
 _CONVERT_HINT = {
     "chumpy": (
@@ -115,21 +163,23 @@ _CONVERT_HINT = {
 class _SafeUnpickler(pickle._Unpickler):  # the pure-Python unpickler: its dispatch table is extensible
     dispatch = dict(pickle._Unpickler.dispatch)
 
-    def __init__(self, file, *, encoding: str = "ASCII"):
+    def __init__(self, file, *, encoding: str = "ASCII", model: bool = False):
         super().__init__(file, encoding=encoding, errors="strict")
         self._file = file
+        self._model = model
 
     def find_class(self, module: str, name: str):
-        global _ALLOWED
+        global _ALLOWED, _MODEL_ALLOWED
         if _ALLOWED is None:
             _ALLOWED = _allowed_globals()
+            _MODEL_ALLOWED = {**_ALLOWED, **_model_globals()}
         if self.proto < 3:  # Python 2 names: __builtin__.set, copy_reg._reconstructor, ...
             if (module, name) in _compat_pickle.NAME_MAPPING:
                 module, name = _compat_pickle.NAME_MAPPING[(module, name)]
             elif module in _compat_pickle.IMPORT_MAPPING:
                 module = _compat_pickle.IMPORT_MAPPING[module]
         try:
-            return _ALLOWED[(module, name)]
+            return (_MODEL_ALLOWED if self._model else _ALLOWED)[(module, name)]
         except KeyError:
             raise RefusedGlobal(module, name) from None
 
@@ -144,6 +194,13 @@ class _SafeUnpickler(pickle._Unpickler):  # the pure-Python unpickler: its dispa
         top = self.stack[-1]
         if isinstance(top, _JoblibArray):
             self.stack[-1] = self._read_joblib_array(top)
+        elif isinstance(top, (_ChumpyArray, _SparseMatrix)):
+            value = _chumpy_value(top) if isinstance(top, _ChumpyArray) else _sparse_value(top)
+            self.stack[-1] = value
+            # The memo still holds the stand-in: later references to it get the value too.
+            for k, v in self.memo.items():
+                if v is top:
+                    self.memo[k] = value
 
     dispatch[pickle.BUILD[0]] = _load_build
 
@@ -177,6 +234,28 @@ class _SafeUnpickler(pickle._Unpickler):  # the pure-Python unpickler: its dispa
         return arr
 
 
+def _chumpy_value(ch: _ChumpyArray) -> np.ndarray:
+    x = ch.__dict__.get("x")
+    if not isinstance(x, np.ndarray) or x.dtype.hasobject:
+        raise pickle.UnpicklingError("a chumpy array whose state holds no numeric array `x` (a chumpy expression?)")
+    return np.array(x, dtype=np.float64)
+
+
+def _sparse_value(m: _SparseMatrix):
+    import scipy.sparse as sp
+
+    state = m.__dict__
+    try:
+        shape = tuple(int(n) for n in state.get("_shape", state.get("shape")))
+        parts = tuple(np.asarray(state[k]) for k in ("data", "indices", "indptr"))
+        if any(p.dtype.hasobject for p in parts):
+            raise TypeError("object arrays")
+        cls = sp.csc_matrix if m.format == "csc" else sp.csr_matrix
+        return cls(parts, shape=shape)  # scipy checks that the parts agree
+    except (KeyError, TypeError, ValueError) as e:
+        raise pickle.UnpicklingError(f"malformed sparse matrix record ({type(e).__name__}: {e})") from None
+
+
 def _refusal(path: Path, e: RefusedGlobal) -> UserError:
     top = e.module.split(".")[0]
     hint = _CONVERT_HINT.get(top, "only numpy arrays and plain containers are accepted")
@@ -186,13 +265,13 @@ def _refusal(path: Path, e: RefusedGlobal) -> UserError:
     )
 
 
-def _unpickle_bytes(data: bytes, path: Path) -> Any:
+def _unpickle_bytes(data: bytes, path: Path, model: bool = False) -> Any:
     # ASCII first (Python 3 pickles never need a decode); latin-1 is the documented way to
     # read Python 2 pickles that hold numpy arrays (their buffers are py2 `str`).
     last: Exception | None = None
     for encoding in ("ASCII", "latin1"):
         try:
-            return _SafeUnpickler(io.BytesIO(data), encoding=encoding).load()
+            return _SafeUnpickler(io.BytesIO(data), encoding=encoding, model=model).load()
         except RefusedGlobal as e:
             raise _refusal(path, e) from None
         except UnicodeDecodeError as e:
@@ -209,16 +288,31 @@ def load_pickle(path: str | Path) -> Any:
     to numpy arrays and builtins containers. Raises `UserError` naming the file on a missing,
     unreadable or refused file."""
     path = Path(path)
+    return _unpickle_bytes(_read_pickle_bytes(path), path)
+
+
+def load_model_pickle(path: str | Path) -> Any:
+    """Load a body-model pickle (SMPL / SMPL-X `.pkl`): what `load_pickle` accepts, plus plain
+    chumpy arrays (returned as float64 numpy arrays) and scipy csc/csr sparse matrices.
+    Nothing in the file is run; `UserError` naming the file otherwise."""
+    path = Path(path)
+    return _unpickle_bytes(_read_pickle_bytes(path), path, model=True)
+
+
+def _read_pickle_bytes(path: Path) -> bytes:
     if not path.is_file():
-        raise UserError(f"{path}: file not found")
-    data = path.read_bytes()
+        raise UserError(f"{path}: file not found" if not path.exists() else f"{path}: not a file")
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise UserError(f"{path}: cannot be read ({e.strerror or e})") from None
     if data[:2] == b"\x1f\x8b":  # gzip (joblib compress='gzip')
         data = _decompress(path, lambda: gzip.decompress(data))
     elif data[:1] == b"\x78":  # zlib (joblib's default compressor)
         data = _decompress(path, lambda: zlib.decompress(data))
     elif data[:2] == b"ZF":  # joblib < 0.10's own zlib container
         raise UserError(f"{path}: written by joblib < 0.10, which cogs cannot read; re-save it with a recent joblib")
-    return _unpickle_bytes(data, path)
+    return data
 
 
 def _decompress(path: Path, fn) -> bytes:
