@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import tyro
 
@@ -21,7 +22,7 @@ class Batch:
     training from its last checkpoint. Manifest format: docs/batch.md.
     """
 
-    manifest: tyro.conf.Positional[Path]
+    manifest: tyro.conf.Positional[Annotated[Path, tyro.conf.arg(metavar="MANIFEST")]]
     """The manifest (YAML): `sequences:` (each one source: synth, video, scene, neuman or
     humannerf; optional train: and eval:) and an optional `defaults:` block."""
     out: Path
@@ -37,7 +38,7 @@ class Batch:
     """GPUs each training and evaluation step gets; above 0 they run on CUDA (fractions
     share a GPU, e.g. 0.5). Preparing a scene uses none."""
     cpus: int | None = None
-    """Local Ray only: how many of this machine's cores the batch may use (default: all)."""
+    """Local Ray only: how many of this machine's cores the batch may use (None: all)."""
 
     def run(self) -> int:
         from cogs.batch.manifest import read_manifest

@@ -42,6 +42,8 @@ EVAL_DEFAULTS = {"pose_fit_steps": 40, "renders": True}
 """`eval:` options: those of `cogs eval`, with its defaults."""
 
 NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+RESERVED = ("results.csv", "results.md")
+"""Names the batch's own files take in OUT."""
 
 
 @dataclass(frozen=True)
@@ -201,7 +203,7 @@ def _entry(raw: Any, defaults: dict, base: Path, where: str, problems: list[str]
     name = raw.get("name")
     if name is None:
         name = f"synth_seed{options.get('seed', 0)}" if kind == "synth" else source.stem
-    if not isinstance(name, str) or not NAME_RE.fullmatch(name):
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name) or name in RESERVED:
         problems.append(f"{where}: name {name!r} must be a folder name of letters, digits, '.', '_' or '-' "
                         "(set `name:`)")
         return None
