@@ -13,7 +13,9 @@ with `cogs eval`'s defaults (40-step test-time pose fit, renders saved).
 * sequential: for each seed `cogs synth`, `cogs train`, `cogs eval` into WORK/sequential/,
   one after another, each process using every core (what a user does by hand).
 
-Each arm runs in fresh folders (they are removed first). `--smoke` shrinks everything
+Each arm runs in fresh folders (they are removed first). Both arms train on identical
+scenes; their metrics differ in the last digits only where their thread counts differ (a
+job with one thread sums floats in another order than a process with two). `--smoke` shrinks everything
 (16 frames at 96x72, the tests' TINY training) to check the script in a few minutes.
 The load average before and after each arm is reported: other work on the machine slows
 both. Progress goes to stderr; the last stdout line is one JSON object.
@@ -65,12 +67,21 @@ def run_batch(work: Path, seeds: list[int], synth: dict, overrides: list[str], c
     print("$ cogs " + " ".join(args), file=sys.stderr, flush=True)
     rc = subprocess.run(cmd, stdout=sys.stderr).returncode
     wall = time.perf_counter() - t0
-    steps = {}
+    steps, metrics = {}, {}
     for s in seeds:
         rec = json.loads((out / f"synth_seed{s}" / "batch.json").read_text())
-        steps[f"synth_seed{s}"] = {k: v.get("seconds") for k, v in rec["steps"].items()}
+        steps[f"seed{s}"] = {k: v.get("seconds") for k, v in rec["steps"].items()}
+        metrics[f"seed{s}"] = _metrics(out / f"synth_seed{s}" / "run")
     return {"wall_s": wall, "exit_code": rc, "load_before": load0, "load_after": os.getloadavg()[0],
-            "step_seconds": steps, "results_md": (out / "results.md").read_text()}
+            "step_seconds": steps, "metrics": metrics, "results_md": (out / "results.md").read_text()}
+
+
+def _metrics(run: Path) -> dict | None:
+    path = run / "eval" / "metrics.json"
+    if not path.is_file():
+        return None
+    m = json.loads(path.read_text())
+    return {"full_psnr": m["full"]["psnr"], "human_psnr": m["human_crop"]["psnr"], "train_seconds": m["train_seconds"]}
 
 
 def run_sequential(work: Path, seeds: list[int], synth: dict, overrides: list[str]) -> dict:
@@ -92,9 +103,7 @@ def run_sequential(work: Path, seeds: list[int], synth: dict, overrides: list[st
         cogs("eval", "--run", str(run))
         times["eval"] = time.perf_counter() - t
         steps[f"seed{s}"] = times
-        m = json.loads((run / "eval" / "metrics.json").read_text())
-        metrics[f"seed{s}"] = {"full_psnr": m["full"]["psnr"], "human_psnr": m["human_crop"]["psnr"],
-                               "train_seconds": m["train_seconds"]}
+        metrics[f"seed{s}"] = _metrics(run)
     return {"wall_s": time.perf_counter() - t0, "load_before": load0, "load_after": os.getloadavg()[0],
             "step_seconds": steps, "metrics": metrics}
 

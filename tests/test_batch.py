@@ -15,6 +15,7 @@ from cogs.batch.results import COLUMNS, markdown, mean_row
 from cogs.cli import main
 from cogs.errors import UserError
 from tests.fixtures import TINY
+from tests.test_importers import motion, write_humannerf  # noqa: F401 (motion is a fixture)
 
 SMALL = {"frames": 16, "width": 96, "height": 72, "points": 1500}
 
@@ -74,6 +75,23 @@ def test_the_mean_row_averages_the_finished_entries_and_missing_numbers_show_as_
     md = markdown(rows, mean, "t")
     assert "| a | 30.00 | — |" in md and "| **mean** | 31.00 |" in md
     assert "failed [1]" in md and "1. c: prepare: x\\|y" in md
+
+
+def test_a_dataset_entry_is_imported_into_its_folder_whole(tmp_path, motion):
+    """The prepare step of a `humannerf:` entry, without Ray: the importer writes beside the
+    scene folder, which then appears complete, and the step checks it."""
+    from cogs.batch.steps import prepare
+
+    joints, w2c = motion
+    write_humannerf(tmp_path / "subject", joints, w2c)
+    doc = {"sequences": [{"humannerf": "subject", "import": {"body_model": "anny"}}]}
+    [entry] = parse_manifest(doc, tmp_path, problems := [])
+    assert not problems and entry.name == "subject"
+    edir, stages = tmp_path / "out" / entry.name, []
+    assert prepare(entry, edir, stages.append) == {"scene": str(edir / "scene")}
+    assert stages == ["import humannerf", "check"]
+    assert sorted(p.name for p in edir.iterdir()) == ["scene"]  # no partial folder left
+    assert (edir / "scene" / "scene.json").is_file()
 
 
 def _rows(out: Path) -> dict[str, dict]:
