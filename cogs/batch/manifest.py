@@ -37,6 +37,9 @@ SOURCES = ("synth", "video", "scene", "neuman", "humannerf")
 OPTION_BLOCKS = {"preprocess": ("video",), "import": ("neuman", "humannerf")}
 """Source-specific option blocks and the sources they belong to."""
 
+BLOCKS = ("synth", *OPTION_BLOCKS, "train", "eval")
+"""The mappings an entry (besides `synth:`, its source) and `defaults:` may hold."""
+
 EVAL_TYPES = {"pose_fit_steps": int, "renders": bool}
 EVAL_DEFAULTS = {"pose_fit_steps": 40, "renders": True}
 """`eval:` options: those of `cogs eval`, with its defaults."""
@@ -104,7 +107,11 @@ def parse_manifest(doc: Any, base: Path, problems: list[str]) -> list[Entry]:
     if not isinstance(defaults, dict):
         problems.append("defaults: expected a mapping")
         defaults = {}
-    _unknown(defaults, ("synth", *OPTION_BLOCKS, "train", "eval"), "defaults", problems)
+    _unknown(defaults, BLOCKS, "defaults", problems)
+    for block in BLOCKS:
+        if defaults.get(block) is not None and not isinstance(defaults[block], dict):
+            problems.append(f"defaults: `{block}:` expected a mapping")
+            defaults = {**defaults, block: None}
     seqs = doc.get("sequences")
     if not isinstance(seqs, list) or not seqs:
         problems.append("sequences: expected a non-empty list of entries")
@@ -132,8 +139,6 @@ def merge(defaults: dict, raw: dict, block: str) -> dict:
     """An entry's `block` over the defaults' one, key by key; `train.set` lists concatenate
     (the defaults' first, so the entry's own overrides win)."""
     base, own = defaults.get(block) or {}, raw.get(block) or {}
-    if not isinstance(base, dict) or not isinstance(own, dict):
-        return own if not isinstance(own, dict) else base  # reported by the caller
     out = {**base, **own}
     if block == "train" and ("set" in base or "set" in own):
         a, b = base.get("set") or [], own.get("set") or []
@@ -145,7 +150,7 @@ def _entry(raw: Any, defaults: dict, base: Path, where: str, problems: list[str]
     if not isinstance(raw, dict):
         problems.append(f"{where}: expected a mapping with one source ({', '.join(SOURCES)})")
         return None
-    _unknown(raw, ("name", *SOURCES, *OPTION_BLOCKS, "train", "eval"), where, problems)
+    _unknown(raw, ("name", *SOURCES, *BLOCKS[1:]), where, problems)
     kinds = [k for k in SOURCES if k in raw]
     if len(kinds) != 1:
         problems.append(f"{where}: needs exactly one source of {', '.join(SOURCES)}"
@@ -155,16 +160,18 @@ def _entry(raw: Any, defaults: dict, base: Path, where: str, problems: list[str]
     for block, owners in OPTION_BLOCKS.items():
         if block in raw and kind not in owners:
             problems.append(f"{where}: `{block}:` options belong to {' / '.join(owners)} entries, not {kind}")
-    for src, d in ((where, raw), ("defaults", defaults)):
-        for block in ("synth", *OPTION_BLOCKS, "train", "eval"):
-            if d.get(block) is not None and not isinstance(d[block], dict):
-                problems.append(f"{src}: `{block}:` expected a mapping")
-                return None
+    bad = [b for b in BLOCKS if raw.get(b) is not None and not isinstance(raw[b], dict)]
+    if bad:
+        problems.extend(f"{where}: `{b}:` expected a mapping" for b in bad)
+        return None
 
     source, options, written = None, {}, {}
     if kind == "synth":
         written = merge(defaults, raw, "synth")  # `synth:` alone (null) takes every default
         options = _check_options(written, _synth_config(), f"{where}: synth", base, problems)
+        small = [k for k, least in (("frames", 2), ("width", 16), ("height", 16)) if options.get(k, least) < least]
+        if small:
+            problems.append(f"{where}: synth needs at least 2 frames of 16x16 pixels ({', '.join(small)})")
     else:
         value = raw[kind]
         if not isinstance(value, str) or not value:
