@@ -10,6 +10,7 @@
     cogs preprocess   raw video -> native scene
     cogs import       NeuMan / HumanNeRF / HOSNeRF layouts -> native scene
     cogs doctor       what this machine offers cogs (backends, body model, LPIPS weights)
+    cogs batch        many sequences (a YAML manifest) through prepare -> train -> eval on Ray
 
 Each sub-command is a dataclass whose fields are its documented options (tyro turns them
 into flags); `run()` does the work. Errors the user can cause are `UserError`s: printed
@@ -72,6 +73,7 @@ class Doctor:
 
 
 def _commands() -> dict[str, type]:
+    from cogs.batch.command import Batch
     from cogs.commands import Ablate, Demo, Eval, RenderInit, Train
     from cogs.data.synth.command import Synth
     from cogs.preprocess.command import Preprocess
@@ -88,6 +90,7 @@ def _commands() -> dict[str, type]:
         "preprocess": Preprocess,
         "import": Import,
         "doctor": Doctor,
+        "batch": Batch,
     }
 
 

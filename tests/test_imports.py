@@ -113,7 +113,7 @@ LAYERS = [
     ("cogs.model", "cogs.config"),
     ("cogs.train",),
     ("cogs.eval", "cogs.preprocess", "cogs.doctor"),
-    ("cogs.commands", "cogs.cli"),
+    ("cogs.commands", "cogs.cli", "cogs.batch"),
 ]
 
 
