@@ -40,7 +40,7 @@ def test_a_manifest_is_checked_whole_before_any_work(tmp_path, capsys):
     msg = str(e.value)
     for expected in ["sequences[0] (a): unknown key 'trian'", "sequences[1] (a): name 'a' is also sequences[0]'s",
                      "missing.mp4 does not exist", "unknown option 'strid'", "synth.seed: 'one' is not an integer",
-                     "no config section 'no'", "`import:` options belong to neuman / humannerf",
+                     "`no` is not a setting", "`import:` options belong to neuman / humannerf",
                      "needs exactly one source"]:
         assert expected in msg, (expected, msg)
     out = tmp_path / "out"
