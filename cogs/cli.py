@@ -10,6 +10,8 @@
     cogs preprocess   raw video -> native scene
     cogs import       NeuMan / HumanNeRF / HOSNeRF layouts -> native scene
     cogs doctor       what this machine offers cogs (backends, body model, LPIPS weights)
+    cogs render       a trained run from new cameras, with new body motions and object paths
+    cogs export       a trained run as 3DGS PLYs, an animatable glTF (.glb) and arrays (.npz)
 
 Each sub-command is a dataclass whose fields are its documented options (tyro turns them
 into flags); `run()` does the work. Errors the user can cause are `UserError`s: printed
@@ -74,6 +76,8 @@ def _commands() -> dict[str, type]:
     from cogs.data.synth.command import Synth
     from cogs.preprocess.command import Preprocess
     from cogs.preprocess.importers import Import
+    from cogs.use.export import Export
+    from cogs.use.render import Render
 
     return {
         "demo": Demo,
@@ -86,6 +90,8 @@ def _commands() -> dict[str, type]:
         "preprocess": Preprocess,
         "import": Import,
         "doctor": Doctor,
+        "render": Render,
+        "export": Export,
     }
 
 
