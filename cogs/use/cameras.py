@@ -28,6 +28,10 @@ from cogs.geometry.camera import intrinsics_from_fov, look_at
 CHOICES = ("train", "orbit", "spiral", "novel")
 DEFAULT_SIZE = (512, 384)
 DEFAULT_FOV_DEG = 50.0
+ORBIT_RADIUS_SCALE = 0.75
+"""Orbits and spirals circle at this fraction of the training cameras' median distance from
+the person: the room behind the training cameras was never seen (checked on the demo
+scene: at the full distance the circle passes through walls and furniture)."""
 
 
 @dataclass
@@ -103,7 +107,7 @@ def camera_path(spec: str, n: int, scene, model, motion, up: np.ndarray, size: t
             eyes = -np.einsum("tji,tj->ti", scene.cameras.world_to_camera[:, :3, :3], scene.cameras.world_to_camera[:, :3, 3])
             rel = eyes - centre
             height = float(np.median(rel @ up))
-            radius = float(np.median(np.linalg.norm(rel - np.outer(rel @ up, up), axis=1)))
+            radius = ORBIT_RADIUS_SCALE * float(np.median(np.linalg.norm(rel - np.outer(rel @ up, up), axis=1)))
             K0, src = scene.cameras.K[0], (scene.width, scene.height)
         else:
             radius, height = 2.5, 0.5
