@@ -15,7 +15,8 @@ handles (absolute (frame, value) pairs) in `metadata`. Two kinds of channel:
 
 Playing it here: the curves are evaluated as Blender does (cubic Bezier between keys,
 solved for the frame), the cycle is repeated as MPFB2's loader repeats it (the root's and
-the IK targets' locations advance by their change over one cycle), each FK rotation R in
+the IK targets' locations advance by one step a cycle; the arm helpers ride on the root),
+each FK rotation R in
 a bone's rest frame B becomes the world-aligned local rotation B R B^T of Anny's
 `local-ref` convention, and the limbs are solved with the synthetic generator's two-bone
 IK. Locations are scaled by the ratio of the body's leg (arm) length to the recorded
@@ -183,6 +184,11 @@ def _chain_length(joints: np.ndarray, idx, names: list[str]) -> float:
     return float(sum(np.linalg.norm(b - a) for a, b in zip(pts[:-1], pts[1:])))
 
 
+def _carried(A: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points [n, 3] given in the canonical frame, moved by transforms A [n, 4, 4]."""
+    return np.einsum("nij,nj->ni", A[:, :3, :3], points) + A[:, :3, 3]
+
+
 def walk_cycle(body, shape: torch.Tensor, fps: float, cycles: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """The shipped walk cycle on `body` (Anny) with `shape`, sampled at `fps` for
     `cycles` repetitions: (pose [T, J, 3] local-ref axis-angle, transl [T, 3]) in the
@@ -207,11 +213,23 @@ def walk_cycle(body, shape: torch.Tensor, fps: float, cycles: float = 2.0) -> tu
     k_leg = leg / float(meta.get("leg_length", leg))
     k_arm = arm / float(meta.get("arm_length", arm))
 
-    def location(bone: str, scale: float) -> np.ndarray:
-        """A location channel played over the loops, as MPFB2's loader repeats it."""
-        loc = curves.value(bone, "location", f)
-        step = curves.value(bone, "location", np.array([period]))[0] - curves.value(bone, "location", np.array([0.0]))[0]
-        return scale * (loc + loop[:, None] * step)
+    def step(bone: str) -> np.ndarray:
+        return curves.value(bone, "location", np.array([period]))[0] - curves.value(bone, "location", np.array([0.0]))[0]
+
+    # One cycle's walking step in the world: the feet's, level. Every looping channel is
+    # carried forward by exactly this per cycle (MPFB2 advances each by its own change,
+    # which agree only on the recorded rig: on the rig description's rest frames the root's
+    # would climb 6 cm a cycle), its shape within the cycle kept.
+    feet = [_rest(rig_desc, f"foot.{side}") @ step(f"{word}_foot_ik") for side, word in _SIDES
+            if curves.has(f"{word}_foot_ik", "location")]
+    S = np.mean(feet, axis=0) if feet else np.zeros(3)
+    S[2] = 0.0  # z is up in the rig's (and Anny's canonical) frame
+
+    def world_location(bone: str, B: np.ndarray, scale: float) -> np.ndarray:
+        """[n, 3] a world-parented channel's offset from its rest head, looped."""
+        loc = curves.value(bone, "location", f) @ B.T
+        drift = S - B @ step(bone)
+        return scale * (loc + (f / period)[:, None] * drift + loop[:, None] * S)
 
     pose = np.zeros((n, J, 3))
     # Forward-kinematics bones: R in the bone's rest frame B -> B R B^T.
@@ -225,7 +243,7 @@ def walk_cycle(body, shape: torch.Tensor, fps: float, cycles: float = 2.0) -> tu
             aa = _aa(B @ euler_xyz(curves.value(f"toe1-1.{side}", "rotation_euler", f)) @ B.T)
             for toe in range(1, 6):  # the recorded rig has one toe bone; Anny has five
                 pose[:, i(f"toe{toe}-1.{side}")] = aa
-    transl = (_rest(rig_desc, "root") @ location("root", k_leg).T).T if curves.has("root", "location") else np.zeros((n, 3))
+    transl = world_location("root", _rest(rig_desc, "root"), k_leg) if curves.has("root", "location") else np.zeros((n, 3))
 
     A = rig.transforms(pose, transl)  # torso posed, limbs at rest
     for side, word in _SIDES:
@@ -238,8 +256,12 @@ def walk_cycle(body, shape: torch.Tensor, fps: float, cycles: float = 2.0) -> tu
                 continue
             B_end = _rest(rig_desc, f"{end}.{side}")
             B_mid = _helper_rest(rig_desc, f"{mid_rest}.{side}")
-            target = joints[i(f"{end}.{side}")] + (B_end @ location(ends, k).T).T
-            pole = joints[i(f"{lower}.{side}")] + (B_mid @ location(mid, k).T).T
+            if end == "foot":  # the leg helpers hang in the world
+                target = joints[i(f"{end}.{side}")] + world_location(ends, B_end, k)
+                pole = joints[i(f"{lower}.{side}")] + world_location(mid, B_mid, k)
+            else:  # the arm helpers ride on the root (their locations do not advance a cycle)
+                target = _carried(A[:, 0], joints[i(f"{end}.{side}")] + k * curves.value(ends, "location", f) @ B_end.T)
+                pole = _carried(A[:, 0], joints[i(f"{lower}.{side}")] + k * curves.value(mid, "location", f) @ B_mid.T)
             bones = (i(f"{upper}.{side}"), i(f"{lower}.{side}"), i(f"{end}.{side}"))
             local = two_bone_ik(rig, A, bones, target, pole, np.zeros(n))
             for b, aa in local.items():
