@@ -258,3 +258,17 @@ def test_a_camera_path_with_nan_and_an_existing_out_are_refused(run, tmp_path, c
     garbage.write_bytes(b"not a zip")
     assert main(["render", "--run", str(run), "--out", str(tmp_path / "z"), "--motion", str(garbage)]) == 2
     assert "--motion" in capsys.readouterr().err
+
+
+def test_render_and_export_make_no_tensor_on_an_implicit_device(run, tmp_path):
+    """With the default device set to `meta`, a tensor made without an explicit device
+    (or one taken from the model or its inputs) lands on meta and fails beside the
+    model's CPU tensors."""
+    torch.set_default_device("meta")
+    try:
+        assert main(["render", "--run", str(run), "--out", str(tmp_path / "r"), *SIZE, "--camera", "orbit",
+                     "--motion", "anny:walk", "--object", "hand-right", "--frames", "0:2", "--depth", "--alpha"]) == 0
+        assert main(["export", "--run", str(run), "--out", str(tmp_path / "e"), "--frame", "1"]) == 0
+    finally:
+        torch.set_default_device("cpu")
+    assert len(_frames(tmp_path / "r")) == 2 and (tmp_path / "e" / "reconstruction.glb").is_file()

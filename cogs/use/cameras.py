@@ -56,7 +56,7 @@ def _to_zup(up: np.ndarray) -> np.ndarray:
     """A rotation taking `up` to +z (identity for z-up worlds)."""
     from cogs.geometry.rotations import rotmat_from_two_vectors
 
-    return rotmat_from_two_vectors(torch.from_numpy(np.asarray(up, np.float64)), torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)).numpy()
+    return rotmat_from_two_vectors(torch.from_numpy(np.asarray(up, np.float64)), torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64, device="cpu")).numpy()
 
 
 def ring(centre: np.ndarray, up: np.ndarray, n: int, radius: float, height: float, spiral: bool = False) -> np.ndarray:

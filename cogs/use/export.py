@@ -314,7 +314,7 @@ def write_gltf_and_arrays(model, out: Path, frame: int, fps: float) -> dict:
     # -- object: a rigid node on its trajectory -------------------------------------------
     if o is not None and len(o):
         g = o.gaussians
-        tau = torch.arange(n_frames, dtype=torch.float32)
+        tau = torch.arange(n_frames, dtype=torch.float32, device=o.centre.device)
         tr, q = o.pose(tau)
         tr, q = tr.double().detach().cpu().numpy(), q.double().detach().cpu().numpy()
         E = o.shading(quat_to_rotmat(o.posed(*o.frame_pose(frame))[1])[:, :, 2]) if o.cfg.shading else None

@@ -73,7 +73,7 @@ def auto_attach_frame(model, bone: int, window: int = 3) -> int:
     tr, q = o.pose(torch.arange(T, dtype=torch.float32, device=o.centre.device))
     rel = torch.linalg.inv(A) @ _matrix(tr.double(), q.double())
     size = float(o.size)
-    score = torch.full((T,), float("inf"), dtype=torch.float64)
+    score = torch.full((T,), float("inf"), dtype=torch.float64, device=rel.device)
     for t in range(T):
         s = list(range(max(0, t - window), min(T, t + window + 1)))
         dt = (rel[s, :3, 3] - rel[t, :3, 3]).norm(dim=-1)
@@ -135,7 +135,7 @@ def _from_json(path: Path, n: int, dev) -> ObjectPath:
     if bad.any():
         raise UserError(f"--object {path}: entry {int(np.argmax(bad))} is not finite (or its quaternion is zero)")
     times = _key_times(at, len(frames), n, f"--object {path}")
-    k = torch.arange(n, dtype=torch.float64)
+    k = torch.arange(n, dtype=torch.float64, device="cpu")
     return ObjectPath(*[x.float().to(dev) for x in _interp_poses(torch.from_numpy(times), torch.from_numpy(tr),
                                                                    quat_normalize(torch.from_numpy(q)), k)])
 

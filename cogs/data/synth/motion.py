@@ -119,7 +119,7 @@ class _Rig:
 
     def __init__(self, model: BodyModel, shape: np.ndarray):
         self.model = model
-        self.shape = torch.as_tensor(shape, dtype=torch.float32)
+        self.shape = torch.as_tensor(shape, dtype=torch.float32, device=model.device)
         can = model.canonical(self.shape)
         self.vertices = can.vertices.double()
         self.weights = can.weights.double()
