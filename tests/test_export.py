@@ -8,7 +8,6 @@ independently of the writers in cogs.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import struct
 import subprocess

@@ -105,11 +105,10 @@ def test_retargeting_an_smpl_sequence_keeps_limb_directions(body_model):
 
 
 def test_walk_cycle_evaluates_blender_bezier_keys_exactly():
-    from cogs.use.walk import Curves, load_cycle
+    from cogs.use.walk import load_cycle, mpfb2_data
 
     curves, _, _ = load_cycle()
-    raw = json.loads((__import__("cogs.use.walk", fromlist=["mpfb2_data"]).mpfb2_data() / "walkcycles" /
-                      "crappy_experimental_female.json").read_text())["animation_data"]["root"]
+    raw = json.loads((mpfb2_data() / "walkcycles" / "crappy_experimental_female.json").read_text())["animation_data"]["root"]
     for frame, ch in raw.items():
         np.testing.assert_allclose(curves.value("root", "location", np.array([float(frame)]))[0],
                                    ch["location"]["values"], atol=1e-9)

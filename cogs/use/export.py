@@ -22,6 +22,7 @@ from typing import Annotated
 import numpy as np
 import torch
 import tyro
+from torch import Tensor
 
 from cogs.errors import UserError
 
@@ -207,7 +208,7 @@ def write_gltf_and_arrays(model, out: Path, frame: int, fps: float) -> dict:
     from cogs.body import lbs_points
     from cogs.branches.gaussians import rgb_to_sh0
     from cogs.geometry.rotations import quat_multiply, quat_sign_continuous, quat_to_rotmat, rotmat_to_quat
-    from cogs.use.gltf import FLOAT, UNSIGNED_BYTE, UNSIGNED_SHORT, GlbBuilder, trs
+    from cogs.use.gltf import UNSIGNED_BYTE, UNSIGNED_SHORT, GlbBuilder, trs
     from cogs.use.posing import gltf_from_world, posed_human_splats, world_up
 
     h, o, s = model.human, model.object, model.scene
@@ -318,8 +319,6 @@ def write_gltf_and_arrays(model, out: Path, frame: int, fps: float) -> dict:
         tr, q = o.pose(tau)
         tr, q = tr.double().detach().cpu().numpy(), q.double().detach().cpu().numpy()
         E = o.shading(quat_to_rotmat(o.posed(*o.frame_pose(frame))[1])[:, :, 2]) if o.cfg.shading else None
-        from cogs.use.posing import rotate_sh  # noqa: F401  (the SH stay in the object's frame)
-
         sh = g.sh if E is None else _shaded_sh(g.sh, E)
         X = np.eye(4)
         X[:3, :3] = quat_to_rotmat(torch.from_numpy(q[frame])).detach().cpu().numpy()

@@ -9,7 +9,8 @@ naming the option. Folder output: OUT/rgb/NNNNNN.png, with --depth OUT/depth.npz
 (`depth` [T, H, W] float16 metres, 0 where nothing was hit, as the scene format's
 gt/depth.npz) and with --alpha OUT/alpha/<branch>/NNNNNN.png. Video output writes the
 depth (colour-mapped) and alphas as videos beside it: OUT.depth.mp4, OUT.alpha-<branch>.mp4.
-Beside either, render.json records the resolved options (attach frame, frame rate, ...).
+The resolved options (attach frame, start frame, frame rate, ...) go to OUT/render.json, or
+OUT.json beside a video.
 """
 
 from __future__ import annotations
