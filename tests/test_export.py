@@ -274,3 +274,17 @@ def test_export_refuses_a_frame_out_of_range_and_an_existing_out(exported, capsy
     assert "--frame 999" in capsys.readouterr().err
     assert main(["export", "--run", str(run), "--out", str(out)]) == 2
     assert "--out" in capsys.readouterr().err
+
+
+def test_turning_sh_coefficients_turns_the_colour_field():
+    """The posed object's SH: rotate_sh(c, R) evaluated at d equals c evaluated at R^T d."""
+    from cogs.geometry.rotations import quat_to_rotmat, random_quat
+    from cogs.render.sh import eval_sh
+    from cogs.use.posing import rotate_sh
+
+    g = torch.Generator().manual_seed(1)
+    c = torch.randn(5, 16, 3, generator=g, dtype=torch.float64)
+    R = quat_to_rotmat(random_quat(1, g, dtype=torch.float64))[0]
+    d = torch.nn.functional.normalize(torch.randn(5, 3, generator=g, dtype=torch.float64), dim=-1)
+    torch.testing.assert_close(eval_sh(3, d, rotate_sh(c, R, 3)), eval_sh(3, d @ R, c))
+    assert not torch.allclose(eval_sh(3, d, c), eval_sh(3, d @ R, c))
