@@ -11,6 +11,8 @@
     cogs import       NeuMan / HumanNeRF / HOSNeRF layouts -> native scene
     cogs doctor       what this machine offers cogs (backends, body model, LPIPS weights)
     cogs batch        many sequences (a YAML manifest) through prepare -> train -> eval on Ray
+    cogs render       a trained run from new cameras, with new body motions and object paths
+    cogs export       a trained run as 3DGS PLYs, an animatable glTF (.glb) and arrays (.npz)
 
 Each sub-command is a dataclass whose fields are its documented options (tyro turns them
 into flags); `run()` does the work. Errors the user can cause are `UserError`s: printed
@@ -78,6 +80,8 @@ def _commands() -> dict[str, type]:
     from cogs.data.synth.command import Synth
     from cogs.preprocess.command import Preprocess
     from cogs.preprocess.importers import Import
+    from cogs.use.export import Export
+    from cogs.use.render import Render
 
     return {
         "demo": Demo,
@@ -91,6 +95,8 @@ def _commands() -> dict[str, type]:
         "import": Import,
         "doctor": Doctor,
         "batch": Batch,
+        "render": Render,
+        "export": Export,
     }
 
 

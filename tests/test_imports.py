@@ -112,7 +112,7 @@ LAYERS = [
     ("cogs.branches",),
     ("cogs.model", "cogs.config"),
     ("cogs.train",),
-    ("cogs.eval", "cogs.preprocess", "cogs.doctor"),
+    ("cogs.eval", "cogs.preprocess", "cogs.doctor", "cogs.use"),
     ("cogs.commands", "cogs.cli", "cogs.batch"),
 ]
 

@@ -1,5 +1,6 @@
-"""SMPL -> Anny retargeting from joint positions, so SMPL-annotated datasets work without
-the (licensed) SMPL model.
+"""SMPL -> Anny retargeting, so SMPL-annotated datasets and SMPL-family motions work without
+the (licensed) SMPL model: from joint positions (`retarget_smpl_joints`, below) and from
+joint rotations (`retarget_smpl_rotations`, at the end).
 
 Public benchmarks describe the person with SMPL parameters and, often, the 24 SMPL joint
 positions they produce. Anny (the free default body model) has a different rig: 104 bones,
@@ -381,3 +382,75 @@ def _retarget(joints: Tensor, body: BodyModel, cfg: RetargetConfig, shape: Tenso
         joint_error_m=err.float(),
         seconds=seconds,
     )
+
+
+# -- SMPL-family rotations -> Anny, by mapping joint rotations ------------------------------
+
+# SMPL's canonical frame (x the person's left, y up, z front) -> Anny's (x left, z up, -y
+# front): a quarter turn about x.
+SMPL_TO_ANNY_AXES = ((1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0))
+
+# The limbs whose rest directions differ between the two rigs (SMPL rests in a T-pose,
+# Anny in an A-pose): SMPL joint -> (the joint its rotation points at, that limb's rest
+# direction in SMPL's canonical frame, an idealised T-pose: legs straight down, arms
+# straight out, feet forward and 27 degrees down as Anny's). Other joints (pelvis, spine,
+# neck, head, collars) are taken to rest alike in both.
+SMPL_LIMB_REST: dict[str, tuple[str, tuple[float, float, float]]] = {
+    "left_hip": ("left_knee", (0.0, -1.0, 0.0)), "right_hip": ("right_knee", (0.0, -1.0, 0.0)),
+    "left_knee": ("left_ankle", (0.0, -1.0, 0.0)), "right_knee": ("right_ankle", (0.0, -1.0, 0.0)),
+    "left_ankle": ("left_foot", (0.0, -0.45, 0.89)), "right_ankle": ("right_foot", (0.0, -0.45, 0.89)),
+    "left_shoulder": ("left_elbow", (1.0, 0.0, 0.0)), "right_shoulder": ("right_elbow", (-1.0, 0.0, 0.0)),
+    "left_elbow": ("left_wrist", (1.0, 0.0, 0.0)), "right_elbow": ("right_wrist", (-1.0, 0.0, 0.0)),
+    "left_wrist": ("left_hand", (1.0, 0.0, 0.0)), "right_wrist": ("right_hand", (-1.0, 0.0, 0.0)),
+}
+SMPL_BODY_JOINTS = 22
+"""Joints read from an SMPL-family pose vector: the root and 21 body joints (SMPL's two
+hand joints and SMPL-H/X finger joints follow them and are left out)."""
+
+
+def smpl_global_rotations(poses: Tensor) -> Tensor:
+    """SMPL-family axis-angle poses [T, >= 66] -> each body joint's rotation from the
+    canonical frame to the world, [T, 22, 3, 3] (float64)."""
+    T = poses.shape[0]
+    local = axis_angle_to_rotmat(poses[:, : 3 * SMPL_BODY_JOINTS].double().reshape(T, SMPL_BODY_JOINTS, 3))
+    G: list[Tensor] = []
+    for j in range(SMPL_BODY_JOINTS):
+        p = SMPL_PARENTS[j]
+        G.append(local[:, j] if p < 0 else G[p] @ local[:, j])
+    return torch.stack(G, 1)
+
+
+def retarget_smpl_rotations(poses: Tensor, trans: Tensor, body: BodyModel, shape: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """Retarget an SMPL-family sequence (AMASS style: axis-angle `poses` [T, >= 66], root
+    first; `trans` [T, 3]) onto Anny by mapping joint rotations: no SMPL model file needed.
+
+    Each SMPL joint's world rotation G_j is carried to its Anny bone (`SMPL_TO_ANNY`) as
+    G_j C^T S_b, where C turns SMPL's canonical axes into Anny's and S_b turns the Anny
+    limb's rest direction onto SMPL's (`SMPL_LIMB_REST`, identity elsewhere), so every
+    limb points where the SMPL limb points; Anny bones between mapped ones keep their
+    rest rotation. The translation is SMPL's (the pelvis' offset from SMPL's origin, a
+    constant, is left in). Returns Anny (pose [T, J, 3] local-ref axis-angle, transl
+    [T, 3]) in the sequence's own world.
+    """
+    assert poses.ndim == 2 and poses.shape[1] >= 3 * SMPL_BODY_JOINTS, poses.shape
+    G = smpl_global_rotations(poses)  # [T, 22, 3, 3]
+    T = G.shape[0]
+    C = torch.tensor(SMPL_TO_ANNY_AXES, dtype=torch.float64, device=G.device)
+    joints = body.canonical(shape).joints.detach().double().to(G.device)
+    names = SMPL_JOINT_NAMES
+    anny = {n: body.bone_index(SMPL_TO_ANNY[n]) for n in names[:SMPL_BODY_JOINTS]}
+    S = {}
+    for n, (child, d_s) in SMPL_LIMB_REST.items():
+        d_a = joints[body.bone_index(SMPL_TO_ANNY[child])] - joints[anny[n]]
+        target = C @ torch.tensor(d_s, dtype=torch.float64, device=G.device)
+        S[n] = rotmat_from_two_vectors(d_a, target)
+    eye = torch.eye(3, dtype=torch.float64, device=G.device)
+    Ga = {anny[n]: G[:, j] @ C.T @ S.get(n, eye) for j, n in enumerate(names[:SMPL_BODY_JOINTS])}
+    pose = torch.zeros(T, body.n_bones, 3, dtype=torch.float64, device=G.device)
+    parents = body.bone_parents
+    for b, Gb in Ga.items():
+        p = parents[b]
+        while p >= 0 and p not in Ga:  # bones in between rest: the nearest mapped ancestor
+            p = parents[p]
+        pose[:, b] = rotmat_to_axis_angle(Gb if p < 0 else Ga[p].transpose(-1, -2) @ Gb)
+    return pose.float(), trans.to(pose.device).float()

@@ -11,8 +11,9 @@ Parameters are stored raw, as 3DGS stores them, in a `torch.nn.ParameterDict`:
 
 Density control (cogs.train.density) edits this dict and the matching optimizer states
 in place; everything else reads the activated views below. The PLY layout is the one
-every 3DGS viewer opens: x, y, z, nx, ny, nz, f_dc_0..2, f_rest_*, opacity, scale_0..2,
-rot_0..3 (binary little-endian floats, raw logit/log values, f_rest channel-major).
+every 3DGS viewer opens: x, y, z, nx, ny, nz, f_dc_0..2, f_rest_0..44, opacity, scale_0..2,
+rot_0..3 (binary little-endian floats, raw logit/log values, f_rest channel-major and
+zero-padded to degree 3).
 """
 
 from __future__ import annotations
@@ -151,38 +152,27 @@ class GaussianSet(torch.nn.Module):
 
     # -- PLY ----------------------------------------------------------------------------
     def save_ply(self, path: str | Path) -> None:
-        """Write the standard 3DGS PLY (binary little-endian, raw values)."""
-        from plyfile import PlyData, PlyElement
-
-        n = len(self)
-        p = {k: v.detach().cpu().float().numpy() for k, v in self.params.items()}
-        rest = p["shN"].transpose(0, 2, 1).reshape(n, -1) if "shN" in p else np.zeros((n, 0), np.float32)
-        names = (
-            ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            + [f"f_rest_{i}" for i in range(rest.shape[1])]
-            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
-        )
-        cols = np.concatenate(
-            [p["means"], np.zeros((n, 3), np.float32), p["sh0"][:, 0, :], rest,
-             p["opacities"][:, None], p["scales"], p["quats"]],
-            axis=1,
-        ).astype(np.float32)
-        data = np.empty(n, dtype=[(name, "<f4") for name in names])
-        for i, name in enumerate(names):
-            data[name] = cols[:, i]
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        PlyData([PlyElement.describe(data, "vertex")], text=False, byte_order="<").write(str(path))
+        """Write the standard 3DGS PLY (binary little-endian, raw values), always in the
+        full degree-3 layout (62 floats, 248 bytes a vertex): viewers and engine plugins
+        that expect `f_rest_0..44` reject anything shorter, so bands above the set's degree
+        are written as zeros. The true degree is kept in a header comment
+        (`comment sh_degree D`), so `load_ply` gives the same set back."""
+        write_ply(path, {k: v.detach() for k, v in self.params.items()}, self.sh_degree)
 
     @classmethod
     def load_ply(cls, path: str | Path) -> "GaussianSet":
         from plyfile import PlyData
 
-        v = PlyData.read(str(path))["vertex"]
+        ply = PlyData.read(str(path))
+        v = ply["vertex"]
         names = v.data.dtype.names
         col = lambda *ks: np.stack([np.asarray(v[k], dtype=np.float32) for k in ks], axis=1)  # noqa: E731
         n_rest = len([k for k in names if k.startswith("f_rest_")])
         assert n_rest % 3 == 0, n_rest
-        degree = int(round(np.sqrt(n_rest // 3 + 1))) - 1
+        stored = int(round(np.sqrt(n_rest // 3 + 1))) - 1
+        declared = [int(c.split()[1]) for c in ply.comments if c.startswith("sh_degree ")]
+        degree = declared[0] if declared else stored
+        assert degree <= stored, (degree, stored)
         params = {
             "means": torch.from_numpy(col("x", "y", "z")),
             "quats": torch.from_numpy(col("rot_0", "rot_1", "rot_2", "rot_3")),
@@ -190,10 +180,44 @@ class GaussianSet(torch.nn.Module):
             "opacities": torch.from_numpy(np.asarray(v["opacity"], dtype=np.float32)),
             "sh0": torch.from_numpy(col("f_dc_0", "f_dc_1", "f_dc_2"))[:, None, :],
         }
-        if n_rest:
-            rest = col(*[f"f_rest_{i}" for i in range(n_rest)]).reshape(-1, 3, n_rest // 3)
+        if degree > 0:
+            per = n_rest // 3  # coefficients per channel in the file (channel-major)
+            rest = col(*[f"f_rest_{i}" for i in range(n_rest)]).reshape(-1, 3, per)[:, :, : num_sh_bases(degree) - 1]
             params["shN"] = torch.from_numpy(rest.transpose(0, 2, 1).copy())
         return cls(params, degree)
+
+
+PLY_PROPERTIES = (
+    ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]
+    + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+)
+"""The reference 3DGS vertex layout, in order (all float32)."""
+
+
+def write_ply(path: str | Path, params: dict[str, Tensor], sh_degree: int) -> None:
+    """Write raw 3DGS parameters (the `GaussianSet` layout: means, wxyz quats, log scales,
+    logit opacities, sh0 [N, 1, 3], optional shN [N, K-1, 3]) as a standard 3DGS PLY in
+    the full layout of `PLY_PROPERTIES`; f_rest is channel-major (all of red's
+    coefficients, then green's, then blue's) and zero above `sh_degree`."""
+    from plyfile import PlyData, PlyElement
+
+    p = {k: v.detach().cpu().float().numpy() for k, v in params.items()}
+    n = p["means"].shape[0]
+    rest = np.zeros((n, 15, 3), np.float32)
+    if sh_degree > 0:
+        rest[:, : p["shN"].shape[1]] = p["shN"]
+    cols = np.concatenate(
+        [p["means"], np.zeros((n, 3), np.float32), p["sh0"].reshape(n, 3), rest.transpose(0, 2, 1).reshape(n, 45),
+         p["opacities"].reshape(n, 1), p["scales"], p["quats"]],
+        axis=1,
+    ).astype(np.float32)
+    assert cols.shape[1] == len(PLY_PROPERTIES) and np.isfinite(cols).all(), "non-finite Gaussian parameters"
+    data = np.empty(n, dtype=[(name, "<f4") for name in PLY_PROPERTIES])
+    for i, name in enumerate(PLY_PROPERTIES):
+        data[name] = cols[:, i]
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    PlyData([PlyElement.describe(data, "vertex")], text=False, byte_order="<",
+            comments=[f"sh_degree {int(sh_degree)}"]).write(str(path))
 
 
 def set_param_groups(g: GaussianSet, lr, prefix: str, means_scale: float) -> list[dict]:

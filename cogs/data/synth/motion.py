@@ -119,7 +119,7 @@ class _Rig:
 
     def __init__(self, model: BodyModel, shape: np.ndarray):
         self.model = model
-        self.shape = torch.as_tensor(shape, dtype=torch.float32)
+        self.shape = torch.as_tensor(shape, dtype=torch.float32, device=model.device)
         can = model.canonical(self.shape)
         self.vertices = can.vertices.double()
         self.weights = can.weights.double()
@@ -162,10 +162,20 @@ def _leg_squat(rig: _Rig, side: str, alpha: np.ndarray):
 
 
 def _arm_ik(rig: _Rig, A: np.ndarray, side: str, target: np.ndarray, pole: np.ndarray, twist: np.ndarray):
-    """Two-bone IK: local rotations of upperarm01, lowerarm01 and wrist placing the wrist
-    joint at `target` [T, 3] with the elbow towards `pole` [T, 3] and the hand twisted by
-    `twist` [T] radians about the forearm. A: transforms of a pass with the torso posed."""
-    iu, ie, iw = rig.i(f"upperarm01.{side}"), rig.i(f"lowerarm01.{side}"), rig.i(f"wrist.{side}")
+    """Two-bone IK of an arm (`two_bone_ik` on upperarm01, lowerarm01 and wrist)."""
+    bones = (rig.i(f"upperarm01.{side}"), rig.i(f"lowerarm01.{side}"), rig.i(f"wrist.{side}"))
+    return two_bone_ik(rig, A, bones, target, pole, twist)
+
+
+def two_bone_ik(rig: _Rig, A: np.ndarray, bones: tuple[int, int, int], target: np.ndarray, pole: np.ndarray,
+                twist: np.ndarray):
+    """Two-bone IK: local rotations of an upper, a lower and an end bone (arm: upperarm01,
+    lowerarm01, wrist; leg: upperleg01, lowerleg01, foot) placing the end bone's head at
+    `target` [T, 3] with the middle joint towards `pole` [T, 3] and the end twisted by
+    `twist` [T] radians about the lower bone. Bones between them (the twist bones) keep
+    their rest rotation. A: transforms of a pass with the upper bone's parent posed.
+    Returns {bone index: axis-angle [T, 3]}."""
+    iu, ie, iw = bones
     ip = rig.parents[iu]
     S0, E0, W0 = rig.joints[iu], rig.joints[ie], rig.joints[iw]
     L1, L2 = np.linalg.norm(E0 - S0), np.linalg.norm(W0 - E0)

@@ -1,0 +1,13 @@
+"""Using a trained reconstruction: render it anew (`cogs render`) and export it (`cogs export`).
+
+* `render.py` — the `render` command: new cameras (`cameras.py`), body motions
+  (`motion.py`, the Anny walk cycle in `walk.py`), object trajectories (`objects.py`), any
+  subset of branches.
+* `export.py` — the `export` command: standard 3DGS PLYs, an animatable glTF binary
+  (`gltf.py`) and the same as plain arrays; the layout is `docs/export.md`.
+* `posing.py` — what both share: the world's up direction, a run's poses at any frame,
+  skinning transforms projected onto rotations.
+
+This package sits with `cogs.eval`: it imports the model, branches, body models, data and
+geometry, and only the CLI imports it.
+"""
