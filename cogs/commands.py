@@ -117,8 +117,17 @@ class Eval:
     """Where to render: `cpu`, or `cuda` / `cuda:N`."""
 
     def run(self) -> int:
-        from cogs.eval.evaluate import evaluate
+        from cogs.eval.evaluate import EVAL_ENTRIES, evaluate
 
+        if self.pose_fit_steps < 0:
+            raise UserError(f"--pose-fit-steps must be 0 or more, got {self.pose_fit_steps}")
+        if self.out is not None and self.out.exists():
+            if not self.out.is_dir():
+                raise UserError(f"--out {self.out}: is a file; --out names the folder metrics.json and renders go in")
+            foreign = sorted(p.name for p in self.out.iterdir() if p.name not in EVAL_ENTRIES)
+            if foreign:
+                raise UserError(f"--out {self.out}: holds files that are not an evaluation's ({', '.join(foreign[:6])}); "
+                                "choose an empty or new folder")
         m = evaluate(self.run_dir, self.out, save_renders=self.renders, pose_fit_steps=self.pose_fit_steps,
                      device=check_device(self.device), scene_dir=self.scene, checkpoint=self.checkpoint)
         print(json.dumps(m, indent=1))

@@ -54,12 +54,23 @@ def workspace(tmp_path_factory) -> Path:
     _edit_json(smpl / "scene.json", lambda m: m.update(body_model="smpl"))
     (ws / "run").mkdir()
     save_config(quick_config(), ws / "run" / "config.yaml")
+    _train_tiny_run(ws)
     rng = np.random.default_rng(0)
     frames = rng.integers(0, 255, (6, 48, 64, 3), dtype=np.uint8)
     for i in range(3):
         write_image(ws / "frames" / f"{i:03d}.png", frames[i])
     write_video(ws / "clip.mp4", frames)
     return ws
+
+
+def _train_tiny_run(ws: Path) -> None:
+    """ws/trained: a finished run of every stage on ws/scene, trained by the real CLI (seconds)."""
+    from cogs.cli import main
+    from tests.fixtures import TINY
+
+    assert main(["train", "--scene", str(ws / "scene"), "--out", str(ws / "trained"), "--set", *TINY]) == 0
+    # The run folder is moved with the workspace: name the scene relative to where the CLI runs.
+    _edit_json(ws / "trained" / "run.json", lambda m: m.update(scene="scene"))
 
 
 def _edit_json(path: Path, change: Callable[[dict], None]) -> None:
@@ -175,6 +186,13 @@ def config_yaml(text: str):
 
 def nothing(ws):
     pass
+
+
+def other_split_scene(ws):
+    """ws/other: the workspace's scene with one frame moved from training to test."""
+    shutil.copytree(ws / "scene", ws / "other")
+    _edit_json(ws / "other" / "scene.json", lambda m: m.update(split={"train": m["split"]["train"][1:],
+                                                                      "test": m["split"]["test"] + m["split"]["train"][:1]}))
 
 
 def both(*fns):
@@ -293,6 +311,38 @@ CASES = [
     C("render-init --frames 0", nothing, "render-init --scene {ws}/scene --frames 0 --out {ws}/init.png", ["--frames must be at least 1, got 0"], code=2),
     C("render-init --out unknown extension", nothing, "render-init --scene {ws}/scene --out {ws}/init.gif", ["--out {ws}/init.gif: unknown extension '.gif'"], code=2),
     C("render-init --out a folder", nothing, "render-init --scene {ws}/scene --out {ws}/frames", ["--out {ws}/frames is an existing folder"], code=2),
+    # trained runs: their folders, checkpoints and scenes
+    C("train over a finished run", nothing, "train --scene {ws}/scene --out {ws}/trained",
+      ["--out {ws}/trained: holds a finished run", "--resume", "--overwrite"], code=2),
+    C("train --out a file", nothing, "train --scene {ws}/scene --out {ws}/clip.mp4", ["--out {ws}/clip.mp4: is a file"], code=2),
+    C("train into a folder of the user's", nothing, "train --scene {ws}/scene --out {ws}/frames --overwrite",
+      ["--out {ws}/frames: the folder holds files that are not a cogs run"], code=2),
+    C("train --resume and --overwrite", nothing, "train --scene {ws}/scene --out {ws}/trained --resume --overwrite",
+      ["--resume continues the run in --out and --overwrite replaces it"], code=2),
+    C("train --checkpoint without --resume", nothing, "train --scene {ws}/scene --out {ws}/new --checkpoint stage_I.pt",
+      ["--checkpoint names the checkpoint --resume continues from"], code=2),
+    C("train --device unknown", nothing, "train --scene {ws}/scene --out {ws}/new --device tpu", ["--device 'tpu'"], code=2),
+    C("train --resume, last checkpoint truncated", truncate("trained/checkpoints/last.pt", 5000),
+      "train --scene {ws}/scene --out {ws}/trained --resume",
+      ["{ws}/trained/checkpoints/last.pt: not a readable cogs checkpoint", "--checkpoint stage_"], code=2),
+    C("train --resume, last checkpoint garbage", write("trained/checkpoints/last.pt", "not a checkpoint\n"),
+      "train --scene {ws}/scene --out {ws}/trained --resume", ["{ws}/trained/checkpoints/last.pt: not a readable cogs checkpoint"], code=2),
+    C("train --resume from a checkpoint that is not there", nothing,
+      "train --scene {ws}/scene --out {ws}/trained --resume --checkpoint stage_IX.pt", ["--checkpoint stage_IX.pt: no such file"], code=2),
+    C("eval, last checkpoint truncated", truncate("trained/checkpoints/last.pt", 5000), "eval --run {ws}/trained",
+      ["{ws}/trained/checkpoints/last.pt: not a readable cogs checkpoint", "cogs eval --checkpoint stage_"], code=2),
+    C("eval of a folder that is not a run", nothing, "eval --run {ws}/frames", ["{ws}/frames is not a training run"], code=2),
+    C("eval without run.json", lambda ws: (ws / "trained" / "run.json").unlink(), "eval --run {ws}/trained",
+      ["{ws}/trained has no run.json", "--scene"], code=2),
+    C("eval of a moved scene", lambda ws: _edit_json(ws / "trained" / "run.json", lambda m: m.update(scene="gone")),
+      "eval --run {ws}/trained", ["names scene 'gone', which does not exist", "--scene"], code=2),
+    C("eval against another scene", other_split_scene, "eval --run {ws}/trained --scene {ws}/other",
+      ["{ws}/trained was trained on another scene", "split_sha1"], code=2),
+    C("eval --checkpoint that is not there", nothing, "eval --run {ws}/trained --checkpoint nope.pt",
+      ["--checkpoint nope.pt: no such file"], code=2),
+    C("eval --pose-fit-steps negative", nothing, "eval --run {ws}/trained --pose-fit-steps -1",
+      ["--pose-fit-steps must be 0 or more, got -1"], code=2),
+    C("eval --out a file", nothing, "eval --run {ws}/trained --out {ws}/clip.mp4", ["--out {ws}/clip.mp4"], code=2),
 ]
 
 

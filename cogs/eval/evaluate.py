@@ -29,6 +29,9 @@ from cogs.log import track
 
 log = logging.getLogger(__name__)
 
+EVAL_ENTRIES = ("metrics.json", "renders", "novel")
+"""What an evaluation writes into its folder (RUN/eval by default); re-evaluating replaces them."""
+
 
 def _mean_metrics(rows: list[dict], notes: list[str], what: str) -> dict:
     out = {}
