@@ -59,6 +59,10 @@ class Train:
     """Print the fully resolved config as YAML and exit."""
     device: str = "cpu"
     """Where to train: `cpu`, or `cuda` / `cuda:N` (rasterizes with gsplat; needs the cuda extra)."""
+    max_side: int | None = None
+    """Train at a reduced resolution: frames, masks and intrinsics scaled so the longer side
+    is at most this many pixels (the files are untouched; `cogs eval` then evaluates at
+    this resolution unless `--full-resolution`). With --resume, the run's own setting holds."""
 
     def run(self) -> int:
         import yaml
@@ -85,11 +89,22 @@ class Train:
             print(yaml.safe_dump(to_dict(cfg), sort_keys=False))
             return 0
         device = check_device(self.device)
-        scene = load_scene(self.scene)
+        max_side = check_max_side(self.max_side)
+        if self.resume:
+            from cogs.data.io import read_json
+
+            info = self.out / "run.json"
+            recorded = read_json(info).get("max_side") if info.is_file() else None
+            if max_side is not None and max_side != recorded:
+                raise UserError(f"--max-side {max_side}: the run in {self.out} trains at {recorded or 'full resolution'}; "
+                                "--resume keeps it (drop --max-side)")
+            max_side = recorded
+        scene = load_scene(self.scene, ground_truth=False, max_side=max_side)
         if not self.resume:
             prepare_new_run(self.out, self.overwrite)
         t0 = time.perf_counter()
-        summary = Trainer(scene, cfg, self.out, resume=self.resume, device=device, checkpoint=self.checkpoint).run()
+        summary = Trainer(scene, cfg, self.out, resume=self.resume, device=device, checkpoint=self.checkpoint,
+                          max_side=max_side).run()
         log.info("trained in %.0f s (%s); Gaussians %s", time.perf_counter() - t0,
                  ", ".join(f"{k} {v:.0f}s" for k, v in summary["stage_seconds"].items()), summary["n_gaussians"])
         return 0
@@ -108,6 +123,9 @@ class Eval:
     It must match the run (frames, size, split)."""
     checkpoint: str | None = None
     """Evaluate this file of RUN/checkpoints (e.g. `stage_VI.pt`) instead of the newest."""
+    full_resolution: bool = False
+    """For a run trained with --max-side: evaluate at the scene's full resolution (the
+    model rendered with the full-size cameras) instead of the training resolution."""
     renders: bool = True
     """Save composite, per-branch, ground-truth and error images of the held-out frames."""
     pose_fit_steps: int = 40
@@ -129,7 +147,8 @@ class Eval:
                 raise UserError(f"--out {self.out}: holds files that are not an evaluation's ({', '.join(foreign[:6])}); "
                                 "choose an empty or new folder")
         m = evaluate(self.run_dir, self.out, save_renders=self.renders, pose_fit_steps=self.pose_fit_steps,
-                     device=check_device(self.device), scene_dir=self.scene, checkpoint=self.checkpoint)
+                     device=check_device(self.device), scene_dir=self.scene, checkpoint=self.checkpoint,
+                     full_resolution=self.full_resolution)
         print(json.dumps(m, indent=1))
         return 0
 
@@ -196,7 +215,7 @@ class Demo:
             else:  # the demo's own folder: a start that never reached a checkpoint is redone
                 cfg = _resolved_config(self.preset, self.set)
                 prepare_new_run(self.out, overwrite=True, keep=("scene",))
-            Trainer(load_scene(scene_dir), cfg, self.out, resume=resume, device=device).run()
+            Trainer(load_scene(scene_dir, ground_truth=False), cfg, self.out, resume=resume, device=device).run()
         times["train"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -262,6 +281,12 @@ class RenderInit:
         write_image(self.out, np.concatenate(rows, axis=0))
         log.info("wrote %s", self.out)
         return 0
+
+
+def check_max_side(value: int | None) -> int | None:
+    if value is not None and value < 32:
+        raise UserError(f"--max-side must be at least 32 (pixels of the longer side), got {value}")
+    return value
 
 
 def _warn_if_scene_differs(scene_dir: Path, frames: int, seed: int) -> None:

@@ -15,6 +15,7 @@ import torch
 from PIL import Image
 
 from cogs.body import load_body_model
+from cogs.cli import main
 from cogs.body.retarget import anny_joints_as_smpl
 from cogs.data.scene import load_scene
 from cogs.data.validate import check_scene
@@ -22,7 +23,7 @@ from cogs.errors import UserError
 from cogs.geometry.camera import look_at, project_points
 from cogs.geometry.rotations import axis_angle_to_rotmat, rotmat_to_quat
 from cogs.preprocess.importers import import_humannerf, import_neuman
-from cogs.preprocess.importers.common import hosnerf16_split, neuman_split
+from cogs.preprocess.importers.common import FrameSelection, hosnerf16_split, neuman_split
 
 W, H = 64, 48
 K = np.array([[70.0, 0.0, 31.5], [0.0, 70.0, 24.5], [0.0, 0.0, 1.0]])
@@ -330,3 +331,41 @@ def test_cli_import_reports_errors_without_traceback(tmp_path, motion, capsys):
     write_neuman(src, joints[:12], w2c[:12])
     assert main(["import", "neuman", str(src), "--out", str(tmp_path / "scene")]) == 0
     assert check_scene(tmp_path / "scene") == []
+
+
+def test_import_keeps_the_frames_asked_for_at_the_size_asked_for(tmp_path, motion):
+    """--start/--stride/--limit keep those frames of the sequence (its split rule applied to
+    them), --max-side resizes frames and masks and scales the intrinsics: a point projects
+    where it did, scaled."""
+    joints, w2c = motion
+    src = tmp_path / "subject"
+    write_humannerf(src, joints, w2c, T=12)
+    full = load_scene(import_humannerf(src, tmp_path / "full"))
+    sel = FrameSelection(start=1, stride=2, limit=5, max_side=W // 2)
+    s = load_scene(import_humannerf(src, tmp_path / "half", select=sel))
+    kept = [1, 3, 5, 7, 9]
+    assert s.frame_ids == [full.frame_ids[i] for i in kept] and s.n_frames == 5
+    assert (s.width, s.height) == (W // 2, round(H * (W // 2) / W))
+    assert s.split == {"train": [1, 3], "test": [0, 2, 4]}  # hosnerf-16's rule on 5 frames
+    assert s.source["selection"]["frames_of_the_sequence"] == kept
+    X = joints[5, [0, 15, 23]]
+    sx, sy = s.width / full.width, s.height / full.height
+    for i, t in enumerate(kept):
+        ours, _ = project_points(X, s.cameras.world_to_camera[i], s.cameras.K[i])
+        theirs, _ = project_points(X, full.cameras.world_to_camera[t], full.cameras.K[t])
+        assert np.allclose(ours, theirs * [sx, sy], atol=1e-6)
+        # the mask, reduced, is the full mask averaged over each new pixel
+        area = full.human_masks[t].reshape(s.height, full.height // s.height, s.width, full.width // s.width).mean((1, 3))
+        assert ((area > 0.5) == s.human_masks[i]).mean() > 0.99
+    nm = tmp_path / "bike"
+    names = write_neuman(nm, joints, w2c)
+    s = load_scene(import_neuman(nm, tmp_path / "neuman", select=FrameSelection(stride=2)))
+    assert s.frame_ids == [n[:-4] for n in names][::2] and s.split["test"] == neuman_split(len(names[::2]))[2]
+
+
+@pytest.mark.parametrize("option, value", [("--stride", "0"), ("--start", "-1"), ("--limit", "0"), ("--max-side", "8")])
+def test_import_selection_options_are_checked_before_work(tmp_path, motion, option, value, capsys):
+    joints, w2c = motion
+    write_humannerf(tmp_path / "subject", joints, w2c, T=4, with_object=False)
+    assert main(["import", "humannerf", str(tmp_path / "subject"), "--out", str(tmp_path / "s"), option, value]) == 2
+    assert f"{option} must be at least" in capsys.readouterr().err and not (tmp_path / "s").exists()

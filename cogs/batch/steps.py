@@ -167,7 +167,7 @@ def train(entry: Entry, edir: Path, report: Report, device: str = "cpu") -> dict
     else:  # the batch's own folder: a start that never reached a checkpoint is redone
         cfg = apply_overrides(preset(entry.preset), list(entry.overrides))
         prepare_new_run(run, overwrite=True)
-    trainer = Trainer(load_scene(scene_dir(entry, edir)), cfg, run, resume=resume, show_progress=False, device=device)
+    trainer = Trainer(load_scene(scene_dir(entry, edir), ground_truth=False), cfg, run, resume=resume, show_progress=False, device=device)
     stop = threading.Event()
     watcher = threading.Thread(target=_watch, args=(trainer, report, stop), daemon=True)
     watcher.start()

@@ -194,6 +194,9 @@ class Scene:
     _images: np.ndarray | None = None  # [T, H, W, 3] uint8
     _human_masks: np.ndarray | None = None  # [T, H, W] bool
     _object_masks: np.ndarray | None = None
+    full_size: tuple[int, int] | None = None
+    """(width, height) of the files on disk when the scene was loaded at a reduced size
+    (`load_scene(max_side=...)`): frames are resized as they are read; None: as on disk."""
 
     # -- frames ----------------------------------------------------------------------
     @property
@@ -215,15 +218,17 @@ class Scene:
 
     @property
     def images(self) -> np.ndarray:
-        """[T, H, W, 3] uint8, loaded once."""
+        """[T, H, W, 3] uint8, loaded once (frame by frame into one array)."""
         if self._images is None:
-            self._images = np.stack([read_image(self.image_path(t)) for t in range(self.n_frames)])
+            self._images = _read_all([self.image_path(t) for t in range(self.n_frames)], read_image,
+                                     (self.height, self.width, 3), np.uint8, self._resize_image)
         return self._images
 
     @property
     def human_masks(self) -> np.ndarray:
         if self._human_masks is None:
-            self._human_masks = np.stack([read_mask(self.mask_path("human", t)) for t in range(self.n_frames)])
+            self._human_masks = _read_all([self.mask_path("human", t) for t in range(self.n_frames)], read_mask,
+                                          (self.height, self.width), bool, self._resize_mask)
         return self._human_masks
 
     @property
@@ -233,8 +238,15 @@ class Scene:
             if not self.has_object:
                 self._object_masks = np.zeros((self.n_frames, self.height, self.width), dtype=bool)
             else:
-                self._object_masks = np.stack([read_mask(self.mask_path("object", t)) for t in range(self.n_frames)])
+                self._object_masks = _read_all([self.mask_path("object", t) for t in range(self.n_frames)], read_mask,
+                                               (self.height, self.width), bool, self._resize_mask)
         return self._object_masks
+
+    def _resize_image(self, a: np.ndarray) -> np.ndarray:
+        return a if self.full_size is None else resize_image(a, self.width, self.height)
+
+    def _resize_mask(self, a: np.ndarray) -> np.ndarray:
+        return a if self.full_size is None else resize_mask(a, self.width, self.height)
 
     def set_pixels(self, images: np.ndarray, human_masks: np.ndarray, object_masks: np.ndarray | None) -> None:
         self._images, self._human_masks, self._object_masks = images, human_masks, object_masks
@@ -255,6 +267,46 @@ class Scene:
             "has_ground_truth": self.gt is not None,
             "source": self.source,
         }
+
+
+def _read_all(paths: list[Path], read, shape: tuple, dtype, resize) -> np.ndarray:
+    """Every file into one preallocated array (no second copy of the clip while stacking)."""
+    out = np.empty((len(paths), *shape), dtype)
+    for t, p in enumerate(paths):
+        out[t] = resize(read(p))
+    return out
+
+
+def resize_image(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[H, W, 3] uint8 to width x height by pixel-area averaging."""
+    import cv2
+
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+
+
+def resize_mask(mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[H, W] bool to width x height: inside where most of the new pixel's area was."""
+    import cv2
+
+    return cv2.resize(mask.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA) > 0.5
+
+
+def reduced_size(width: int, height: int, max_side: int | None) -> tuple[int, int]:
+    """(width, height) scaled so the longer side is at most `max_side` (unchanged when it
+    already is, or when max_side is None)."""
+    if max_side is None or max(width, height) <= max_side:
+        return width, height
+    s = max_side / max(width, height)
+    return max(1, round(width * s)), max(1, round(height * s))
+
+
+def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """K [..., 3, 3] for an image resized by (sx, sy): pixel centres sit at i + 0.5 (the
+    rasterizer's convention), so focal lengths and principal point scale alike."""
+    K = np.array(K, dtype=np.float64, copy=True)
+    K[..., 0, :] *= sx
+    K[..., 1, :] *= sy
+    return K
 
 
 def default_frame_ids(n: int) -> list[str]:
@@ -329,8 +381,13 @@ def _save_gt(gt: GroundTruth, root: Path, ids: list[str]) -> None:
 # -- loading --------------------------------------------------------------------------
 
 
-def load_scene(root: str | Path, validate: bool = True) -> Scene:
-    """Load a scene folder; with `validate`, raise SceneError listing every problem."""
+def load_scene(root: str | Path, validate: bool = True, ground_truth: bool = True,
+               max_side: int | None = None) -> Scene:
+    """Load a scene folder; with `validate`, raise SceneError listing every problem.
+
+    `ground_truth=False` leaves gt/ unread (training never looks at it); `max_side` loads
+    the scene at a reduced size (the longer side at most that many pixels): every frame,
+    mask and ground-truth map is resized as it is read and the intrinsics are scaled."""
     root = Path(root)
     if validate:
 
@@ -344,12 +401,19 @@ def load_scene(root: str | Path, validate: bool = True) -> Scene:
     obj = ObjectTrack.from_json(read_json(root / "object.json")) if meta.get("has_object", False) else None
     xyz, rgb = read_points_ply(root / "points.ply")
     planes = _planes_from_json(read_json(root / "planes.json")) if (root / "planes.json").exists() else None
-    gt = _load_gt(root / "gt", ids, meta.get("has_object", False)) if (root / "gt" / "cameras.json").exists() else None
+    W, H = int(meta["width"]), int(meta["height"])
+    w, h = reduced_size(W, H, max_side)
+    size = None if (w, h) == (W, H) else (w, h)
+    gt = None
+    if ground_truth and (root / "gt" / "cameras.json").exists():
+        gt = _load_gt(root / "gt", ids, meta.get("has_object", False), size)
+    if size is not None:
+        cameras = CameraTrack(K=scale_intrinsics(cameras.K, w / W, h / H), world_to_camera=cameras.world_to_camera)
     return Scene(
         root=root,
         name=meta.get("name", root.name),
-        width=int(meta["width"]),
-        height=int(meta["height"]),
+        width=w,
+        height=h,
         fps=float(meta.get("fps", 10.0)),
         frame_ids=ids,
         split={k: list(v) for k, v in meta["split"].items()},
@@ -361,31 +425,55 @@ def load_scene(root: str | Path, validate: bool = True) -> Scene:
         planes=planes,
         gt=gt,
         source=meta.get("source", {}),
+        full_size=None if size is None else (W, H),
     )
 
 
-def _load_gt(root: Path, ids: list[str], has_object: bool) -> GroundTruth:
+def _load_gt(root: Path, ids: list[str], has_object: bool, size: tuple[int, int] | None = None) -> GroundTruth:
+    """The ground truth; at `size` (width, height) when given, resized as it is read."""
+    import cv2
+
+    def fit_mask(a: np.ndarray) -> np.ndarray:
+        return a if size is None else resize_mask(a, *size)
+
+    def fit_depth(d: np.ndarray) -> np.ndarray:  # nearest: no depth between a surface and what is behind it
+        return d if size is None else np.stack([cv2.resize(x, size, interpolation=cv2.INTER_NEAREST) for x in d])
+
     def masks(kind: str, names: list[str], base: Path) -> np.ndarray:
-        return np.stack([read_mask(base / "masks" / kind / f"{n}.png") for n in names])
+        paths = [base / "masks" / kind / f"{n}.png" for n in names]
+        first = fit_mask(read_mask(paths[0])) if paths else np.zeros((0, 0), bool)
+        return _read_all(paths, read_mask, first.shape, bool, fit_mask)
+
+    def scaled(track: CameraTrack, W: int, H: int) -> CameraTrack:
+        if size is None:
+            return track
+        return CameraTrack(K=scale_intrinsics(track.K, size[0] / W, size[1] / H), world_to_camera=track.world_to_camera)
 
     with np.load(root / "depth.npz", allow_pickle=False) as z:
-        depth = z["depth"].astype(np.float32)
+        raw = z["depth"].astype(np.float32)
+    depth_full_h, depth_full_w = raw.shape[1:3]
+    depth = fit_depth(raw)
+    del raw
     novel = None
     if (root / "novel" / "cameras.json").exists():
         cams_json = read_json(root / "novel" / "cameras.json")
         vids = [f["id"] for f in cams_json["frames"]]
         with np.load(root / "novel" / "depth.npz", allow_pickle=False) as z:
-            ndepth = z["depth"].astype(np.float32)
+            raw_depth = z["depth"].astype(np.float32)
+        full_h, full_w = raw_depth.shape[1:3]
+        ndepth = fit_depth(raw_depth)
+        img_paths = [root / "novel" / "images" / f"{v}.png" for v in vids]
         novel = NovelViews(
             frames=np.array([f["frame"] for f in cams_json["frames"]], dtype=np.int64),
-            cameras=CameraTrack.from_json(cams_json),
-            images=np.stack([read_image(root / "novel" / "images" / f"{v}.png") for v in vids]),
+            cameras=scaled(CameraTrack.from_json(cams_json), full_w, full_h),
+            images=_read_all(img_paths, read_image, (*ndepth.shape[1:3], 3), np.uint8,
+                             (lambda a: a) if size is None else (lambda a: resize_image(a, *size))),
             human_masks=masks("human", vids, root / "novel"),
             object_masks=masks("object", vids, root / "novel"),
             depth=ndepth,
         )
     return GroundTruth(
-        cameras=CameraTrack.from_json(read_json(root / "cameras.json")),
+        cameras=scaled(CameraTrack.from_json(read_json(root / "cameras.json")), depth_full_w, depth_full_h),
         body=BodyTrack.load(root / "body.npz"),
         object=ObjectTrack.from_json(read_json(root / "object.json")) if has_object else None,
         human_masks=masks("human", ids, root),

@@ -66,7 +66,7 @@ def run_ablation(scene_dir: Path, out: Path, preset: str, variants: dict[str, li
             cfg = load_config(run / "config.yaml") if resume else apply_overrides(get_preset(preset), sets)
             if not resume:  # the ablation's own folder: a start that never reached a checkpoint is redone
                 prepare_new_run(run, overwrite=True)
-            Trainer(load_scene(scene_dir), cfg, run, resume=resume, device=device).run()
+            Trainer(load_scene(scene_dir, ground_truth=False), cfg, run, resume=resume, device=device).run()
         saved = run / "eval" / "metrics.json"
         m = read_json(saved) if saved.exists() and not trained else evaluate(run, save_renders=False, device=device)
         row = rows.setdefault(name, {"overrides": overrides, "seeds": {}})

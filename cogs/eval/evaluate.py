@@ -78,10 +78,11 @@ def _numpy(x: torch.Tensor) -> np.ndarray:
     return a
 
 
-def load_run(run: Path, device: str = "cpu", scene_dir: Path | None = None, checkpoint: str | None = None):
+def load_run(run: Path, device: str = "cpu", scene_dir: Path | None = None, checkpoint: str | None = None,
+             full_resolution: bool = False):
     """(model, config, scene) of a run folder: the model from its last checkpoint (no
-    images read), the scene its run.json names (or `scene_dir`), checked against the
-    fingerprint the run recorded of the scene it trained on."""
+    images read), the scene its run.json names (or `scene_dir`) at the resolution the run
+    trained at (or in full), checked against the fingerprint the run recorded."""
     from cogs.config import load_config
     from cogs.data.scene import load_scene
     from cogs.model import Model
@@ -101,7 +102,7 @@ def load_run(run: Path, device: str = "cpu", scene_dir: Path | None = None, chec
         if not named or not Path(named).exists():
             raise UserError(f"{info_path} names scene {named!r}, which does not exist (moved?); pass it with --scene")
         scene_dir = Path(named)
-    scene = load_scene(scene_dir)
+    scene = load_scene(scene_dir, max_side=None if full_resolution else info.get("max_side"))
     check_fingerprint(run, info.get("fingerprint"), scene)
     return model, load_config(run / "config.yaml"), scene
 
@@ -121,12 +122,12 @@ def _progress(run: Path, names: list[str], model, checkpoint: str | None) -> tup
 
 def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose_fit_steps: int = 40,
              show_progress: bool = True, device: str = "cpu", scene_dir: Path | None = None,
-             checkpoint: str | None = None) -> dict:
+             checkpoint: str | None = None, full_resolution: bool = False) -> dict:
     from cogs.train.stages import stage_names
 
     run = Path(run)
     out = Path(out) if out else run / "eval"
-    model, cfg, scene = load_run(run, device, scene_dir, checkpoint)
+    model, cfg, scene = load_run(run, device, scene_dir, checkpoint, full_resolution)
     gt = scene.gt
     notes: list[str] = []
     names = stage_names(cfg)
@@ -158,6 +159,7 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
     metrics: dict = {
         "protocol": protocol,
         "n_test_frames": len(test),
+        "resolution": [scene.width, scene.height],
         "full": _mean_metrics(full, notes, "full"),
         "human_crop": _mean_metrics(hcrop, notes, "human_crop"),
         "object_crop": _mean_metrics(ocrop, notes, "object_crop") if protocol != "neuman" and scene.has_object else None,

@@ -62,9 +62,10 @@ def prepare_new_run(out: Path, overwrite: bool, keep: tuple[str, ...] = ()) -> N
 
 
 def scene_fingerprint(scene) -> dict:
-    """What identifies the scene a run trained on: frame count, size, split."""
+    """What identifies the scene a run trained on: frame count, size on disk, split."""
     split = json.dumps({k: [int(t) for t in v] for k, v in sorted(scene.split.items())}, sort_keys=True)
-    return {"frames": int(scene.n_frames), "width": int(scene.width), "height": int(scene.height),
+    width, height = scene.full_size or (scene.width, scene.height)
+    return {"frames": int(scene.n_frames), "width": int(width), "height": int(height),
             "split_sha1": hashlib.sha1(split.encode()).hexdigest()[:12]}
 
 

@@ -31,7 +31,7 @@ import torch
 from cogs.branches.base import REGISTRY
 from cogs.branches.build import build_branch
 from cogs.branches.human import compute_visibility
-from cogs.config import TrainConfig, save_config, validate_config
+from cogs.config import STAGES, TrainConfig, save_config, validate_config
 from cogs.data.scene import Scene
 from cogs.errors import UserError
 from cogs.model import Model, _legacy, upgrade_legacy
@@ -39,6 +39,7 @@ from cogs.train import checkpoint as ckpt
 from cogs.train.checkpoint import RunState
 from cogs.train.density import DensityStrategy
 from cogs.train.frames import TrainFrames
+from cogs.train.memory import check_fits
 from cogs.train.objectives import OBJECTIVES, RENDERS, StepInputs
 from cogs.train.stages import StageSpec, build_stages, stage_names
 
@@ -60,15 +61,19 @@ def run_is_finished(run: Path) -> bool:
 
 class Trainer:
     def __init__(self, scene: Scene, cfg: TrainConfig, out: Path, resume: bool = False, show_progress: bool = True,
-                 device: str | torch.device = "cpu", checkpoint: str | None = None):
+                 device: str | torch.device = "cpu", checkpoint: str | None = None, max_side: int | None = None):
         self.scene, self.cfg, self.out = scene, validate_config(cfg), Path(out)
         self.show_progress = show_progress
         self.device = torch.device(device)
+        check_fits(scene.n_frames, scene.width, scene.height, cfg, scene.root)
         self.frames = TrainFrames(scene, self.device)
         if not self.frames.train:
             raise UserError(f"scene {scene.root}: the split has no training frames")
         self.extent = self.frames.extent()
         self.stages = build_stages(cfg, len(self.frames.train), object_share=self.frames.object_share())
+        skipped = [s for s in STAGES if getattr(cfg.schedule, s) == 0 and not cfg.schedule.single_stage]
+        if skipped:
+            log.info("stage(s) %s set to 0 steps: skipped", ", ".join(skipped))
         # Module initialisers draw from the global generators: seed them too.
         torch.manual_seed(cfg.seed)
         np.random.seed(cfg.seed)
@@ -94,7 +99,8 @@ class Trainer:
             from cogs.train.run_folder import scene_fingerprint
 
             write_json(self.out / "run.json", {"scene": str(Path(scene.root).resolve()) if scene.root else None,
-                                               "preset": cfg.preset, "fingerprint": scene_fingerprint(scene)})
+                                               "preset": cfg.preset, "fingerprint": scene_fingerprint(scene),
+                                               "max_side": max_side, "size": [scene.width, scene.height]})
 
     # -- branches and optimizers ----------------------------------------------------------
     def _ensure_branches(self, spec: StageSpec) -> None:

@@ -44,6 +44,15 @@ class Import:
     overwrite: bool = False
     """Replace what OUT already holds, once the new scene is complete (without it an
     existing OUT is refused)."""
+    start: int = 0
+    """Keep frames from this index of the sequence (video order)."""
+    stride: int = 1
+    """Keep every this-many-th frame (2 halves a 570-frame sequence)."""
+    limit: int | None = None
+    """Keep at most this many frames."""
+    max_side: int | None = None
+    """Resize frames and masks so the longer side is at most this many pixels (intrinsics
+    scaled). The dataset's split rule is applied to the frames kept."""
 
     def run(self) -> int:
         from cogs.data.outdir import check_out_folder
@@ -51,6 +60,9 @@ class Import:
         from cogs.log import console
 
         # Before any work: the options, the output folder and the SMPL model file.
+        from cogs.preprocess.importers.common import FrameSelection
+
+        select = FrameSelection(self.start, self.stride, self.limit, self.max_side).check()
         if not Path(self.dir).is_dir():
             raise UserError(f"{self.dir}: not a folder (expected a {self.kind} dataset folder)")
         out, src = Path(self.out).resolve(), Path(self.dir).resolve()
@@ -65,9 +77,10 @@ class Import:
                 set_smpl_model_path(self.smpl_model)
         if self.kind == "neuman":
             out = import_neuman(self.dir, self.out, self.body_model, self.smpl_model, self.smpl_source,
-                                overwrite=self.overwrite)
+                                overwrite=self.overwrite, select=select)
         else:
-            out = import_humannerf(self.dir, self.out, self.body_model, self.smpl_model, overwrite=self.overwrite)
+            out = import_humannerf(self.dir, self.out, self.body_model, self.smpl_model, overwrite=self.overwrite,
+                                   select=select)
         console.print(f"[green]imported[/green] {self.dir} -> {out}  (check it with: cogs check {out})")
         return 0
 

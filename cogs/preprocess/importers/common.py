@@ -510,6 +510,70 @@ class ImportedFrames:
     source: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class FrameSelection:
+    """Which frames an import keeps and at what size: every `stride`-th frame from `start`,
+    at most `limit` of them; the longer side at most `max_side` pixels."""
+
+    start: int = 0
+    stride: int = 1
+    limit: int | None = None
+    max_side: int | None = None
+
+    def check(self) -> "FrameSelection":
+        """Before any work: every value legal (UserError naming the option)."""
+        for name, value, low in (("--start", self.start, 0), ("--stride", self.stride, 1),
+                                 ("--limit", self.limit, 1), ("--max-side", self.max_side, 32)):
+            if value is not None and value < low:
+                raise UserError(f"{name} must be at least {low}, got {value}")
+        return self
+
+    @property
+    def identity(self) -> bool:
+        return self.start == 0 and self.stride == 1 and self.limit is None and self.max_side is None
+
+    def indices(self, n: int, where: str) -> list[int]:
+        idx = list(range(self.start, n, self.stride))[: self.limit]
+        if len(idx) < 2:
+            raise UserError(f"{where}: --start {self.start} --stride {self.stride} keeps {len(idx)} of its {n} frames; "
+                            "a scene needs at least 2")
+        return idx
+
+
+def select_frames(frames: ImportedFrames, sel: FrameSelection, split_rule, where: str) -> ImportedFrames:
+    """The imported frames `sel` keeps, resized to its `max_side` (intrinsics scaled), with
+    the dataset's split rule applied to the frames kept. Unchanged for the identity."""
+    if sel.identity:
+        return frames
+    from dataclasses import replace
+
+    from cogs.data.scene import reduced_size, resize_image, resize_mask, scale_intrinsics
+
+    idx = sel.indices(len(frames.frame_ids), where)
+    pick = lambda a: None if a is None else np.asarray(a)[idx]  # noqa: E731
+    f = frames.fits
+    fits = replace(f, global_orient=pick(f.global_orient), body_pose=pick(f.body_pose), scale=pick(f.scale),
+                   rotation=pick(f.rotation), translation=pick(f.translation), joints=pick(f.joints),
+                   pelvis_in_body=pick(f.pelvis_in_body))
+    images, human, obj = pick(frames.images), pick(frames.human_masks), pick(frames.object_masks)
+    K = frames.cameras.K[idx]
+    H, W = images.shape[1:3]
+    w, h = reduced_size(W, H, sel.max_side)
+    if (w, h) != (W, H):
+        images = np.stack([resize_image(im, w, h) for im in images])
+        human = np.stack([resize_mask(m, w, h) for m in human])
+        obj = None if obj is None else np.stack([resize_mask(m, w, h) for m in obj])
+        K = scale_intrinsics(K, w / W, h / H)
+    source = {**frames.source, "selection": {"start": sel.start, "stride": sel.stride, "limit": sel.limit,
+                                             "max_side": sel.max_side, "frames_of_the_sequence": idx,
+                                             "size_of_the_sequence": [W, H],
+                                             "split": "the dataset's rule applied to the frames kept"}}
+    return replace(frames, frame_ids=[frames.frame_ids[i] for i in idx], images=images, human_masks=human,
+                   object_masks=obj, cameras=CameraTrack(K=K, world_to_camera=frames.cameras.world_to_camera[idx]),
+                   fits=fits, body_R=pick(frames.body_R), body_c=pick(frames.body_c), split=split_rule(len(idx)),
+                   source=source)
+
+
 def write_scene(frames: ImportedFrames, out: Path, body_model: str, smpl_model: Path | None,
                 overwrite: bool = False) -> Path:
     """Convert the body, guess what is missing (points, object pose) and save the scene:

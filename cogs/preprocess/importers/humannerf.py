@@ -35,12 +35,14 @@ from cogs.data.scene import CameraTrack
 from cogs.errors import UserError
 from cogs.geometry.rotations import axis_angle_to_rotmat
 from cogs.preprocess.importers.common import (
+    FrameSelection,
     ImportedFrames,
     SmplFits,
     Undistorter,
     as_array,
     hosnerf16_split,
     read_gray,
+    select_frames,
     read_rgb,
     require,
     write_scene,
@@ -74,9 +76,11 @@ def import_humannerf(
     body_model: str = "anny",
     smpl_model: Path | None = None,
     overwrite: bool = False,
+    select: FrameSelection = FrameSelection(),
 ) -> Path:
     """Import one HumanNeRF/HOSNeRF subject folder `src` as a native scene in `out` (an
-    existing `out` is replaced only with `overwrite`, once the new scene is complete)."""
+    existing `out` is replaced only with `overwrite`, once the new scene is complete);
+    `select` keeps some of its frames, at a reduced size."""
     check_out_folder(Path(out), overwrite=overwrite)
     root = Path(src)
     if not root.is_dir():
@@ -105,6 +109,9 @@ def import_humannerf(
     frames = sorted(p.stem for p in img_dir.iterdir() if p.suffix.lower() in _IMAGE_EXTS)
     if not frames:
         raise UserError(f"{img_dir}: no images")
+    n_all = len(frames)
+    if not select.identity:  # read only the frames kept; resized below
+        frames = [frames[i] for i in select.indices(n_all, str(img_dir))]
     obj_dir = next((root / d for d in OBJECT_MASK_DIRS if (root / d).is_dir()), None)
 
     Ks, w2cs, images, humans, objects = [], [], [], [], []
@@ -205,7 +212,18 @@ def import_humannerf(
             "principal_point_shift_px": 0.5,
         },
     )
+    if not select.identity:
+        data = select_frames(data, FrameSelection(max_side=select.max_side), _hosnerf_split, str(img_dir))
+        data.source["selection"] = {
+            "start": select.start, "stride": select.stride, "limit": select.limit, "max_side": select.max_side,
+            "frames_of_the_sequence": list(range(n_all))[select.start::select.stride][: select.limit],
+            "split": "the dataset's rule applied to the frames kept"}
     return write_scene(data, Path(out), body_model, smpl_model, overwrite=overwrite)
+
+
+def _hosnerf_split(n: int) -> dict[str, list[int]]:
+    train, test = hosnerf16_split(n)
+    return {"train": train, "test": test}
 
 
 def _rh_from_matrix(value, where: str) -> np.ndarray:

@@ -32,12 +32,14 @@ from cogs.data.safe_pickle import load_npy, load_pickle
 from cogs.data.scene import CameraTrack
 from cogs.errors import UserError
 from cogs.preprocess.importers.common import (
+    FrameSelection,
     ImportedFrames,
     SmplFits,
     Undistorter,
     as_array,
     camera_centres,
     colmap_intrinsics,
+    select_frames,
     fold_scale,
     neuman_split,
     read_colmap_cameras,
@@ -161,6 +163,7 @@ def import_neuman(
     smpl_model: Path | None = None,
     smpl_source: str = "auto",
     overwrite: bool = False,
+    select: FrameSelection = FrameSelection(),
 ) -> Path:
     """Import one NeuMan sequence folder `src` as a native scene in `out` (an existing `out`
     is replaced only with `overwrite`, once the new scene is complete).
@@ -263,7 +266,13 @@ def import_neuman(
                               "frame's view ray; images of the body are unchanged" % scale_spread),
         },
     )
+    frames = select_frames(frames, select, _neuman_split, str(root))
     return write_scene(frames, Path(out), body_model, smpl_model, overwrite=overwrite)
+
+
+def _neuman_split(n: int) -> dict[str, list[int]]:
+    train, _, test = neuman_split(n)
+    return {"train": train, "test": test}
 
 
 def _choose_fits(root: Path, names: list[str], smpl_source: str, body_model: str) -> SmplFits:
