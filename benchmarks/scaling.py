@@ -1,0 +1,116 @@
+"""How a training step's time and the run's peak memory grow with resolution and clip length.
+
+    python benchmarks/scaling.py [--work DIR] [--quick]
+
+A small synthetic scene (24 frames) is upsampled and tiled into scenes of each size
+(the motion repeats every 24 frames; what is measured is cost, not quality): 100 frames at
+256x192, 512x384, 1024x768 and 1920x1080, and 100, 300 and 600 frames at 512x384. Each
+trains in its own process a short schedule that reaches stage VI with density control
+off, so every size carries the same Gaussians; the step time is stage VI's seconds per
+step, the peak is the process's maximum resident set. Beside each, the estimate
+`cogs.train.memory` refuses runs by. The cost should grow with the pixels a step renders,
+not with the frames the run holds. Prints one JSON object on its last line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+SCHEDULE = ["schedule.I=5", "schedule.II=5", "schedule.III=5", "schedule.IV=5", "schedule.V=5", "schedule.VI=25",
+            "refit.steps=0", "human_density.enabled=false", "object_density.enabled=false",
+            "scene_density.enabled=false", "visibility_every=1000", "checkpoint_every=1000"]
+
+CHILD = r"""
+import json, resource, sys, time
+import cogs
+from cogs.config import apply_overrides, quick_config
+from cogs.data.scene import load_scene
+from cogs.train.trainer import Trainer
+scene, out, sets = sys.argv[1], sys.argv[2], sys.argv[3:]
+cfg = apply_overrides(quick_config(), sets)
+s = load_scene(scene, ground_truth=False)
+t0 = time.perf_counter()
+summary = Trainer(s, cfg, out, show_progress=False).run()
+vi = summary["stage_seconds"]["VI"] / cfg.schedule.VI
+print(json.dumps({"step_vi_s": vi, "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2,
+                  "n_gaussians": summary["n_gaussians"], "seconds": time.perf_counter() - t0}))
+"""
+
+
+def _tiled_scene(base, frames: int, width: int, height: int, root: Path) -> Path:
+    import numpy as np
+
+    from cogs.data.scene import (BodyTrack, CameraTrack, ObjectTrack, Scene, default_frame_ids, resize_image,
+                                 resize_mask, save_scene, scale_intrinsics)
+
+    if (root / "scene.json").exists():
+        return root
+    idx = np.arange(frames) % base.n_frames
+    sx, sy = width / base.width, height / base.height
+    images = np.stack([resize_image(base.images[i], width, height) if (sx, sy) != (1, 1) else base.images[i] for i in idx])
+    hm = np.stack([resize_mask(base.human_masks[i], width, height) for i in idx])
+    om = np.stack([resize_mask(base.object_masks[i], width, height) for i in idx])
+    split_test = list(range(0, frames, max(frames // 16, 2)))[:16]
+    scene = Scene(
+        root=None, name=f"tiled_{frames}x{width}x{height}", width=width, height=height, fps=base.fps,
+        frame_ids=default_frame_ids(frames),
+        split={"train": [t for t in range(frames) if t not in split_test], "test": split_test},
+        cameras=CameraTrack(K=scale_intrinsics(base.cameras.K[idx], sx, sy), world_to_camera=base.cameras.world_to_camera[idx]),
+        body=BodyTrack(base.body.model, base.body.shape, base.body.pose[idx], base.body.transl[idx]),
+        object=ObjectTrack(base.object.centre, base.object.quats[idx], base.object.translations[idx]),
+        points_xyz=base.points_xyz, points_rgb=base.points_rgb, planes=base.planes, source={"generator": "benchmarks/scaling.py"},
+    )
+    scene.set_pixels(images, hm, om)
+    return save_scene(scene, root)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--work", type=Path, default=Path("scaling_work"))
+    ap.add_argument("--quick", action="store_true", help="two small sizes only (a smoke run)")
+    args = ap.parse_args()
+    import cogs  # noqa: F401
+    from cogs.config import apply_overrides, quick_config
+    from cogs.data.scene import load_scene, save_scene
+    from cogs.data.synth import SynthConfig, generate_scene
+    from cogs.train.memory import GiB, estimate
+
+    base_dir = args.work / "base"
+    if not (base_dir / "scene.json").exists():
+        save_scene(generate_scene(SynthConfig(frames=24), show_progress=False), base_dir)
+    base = load_scene(base_dir, ground_truth=False)
+    sizes = [(100, 256, 192), (100, 512, 384), (100, 1024, 768), (100, 1920, 1080), (300, 512, 384), (600, 512, 384)]
+    if args.quick:
+        sizes = [(30, 256, 192), (60, 256, 192)]
+    cfg = apply_overrides(quick_config(), SCHEDULE)
+    rows = []
+    for frames, w, h in sizes:
+        scene = _tiled_scene(base, frames, w, h, args.work / f"scene_{frames}_{w}x{h}")
+        out = args.work / f"run_{frames}_{w}x{h}"
+        if out.exists():
+            import shutil
+
+            shutil.rmtree(out)
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-c", CHILD, str(scene), str(out), *SCHEDULE], capture_output=True, text=True,
+                           cwd=REPO)
+        assert r.returncode == 0, r.stderr[-3000:]
+        m = json.loads(r.stdout.strip().splitlines()[-1])
+        est = estimate(frames, w, h, cfg)
+        rows.append({"frames": frames, "width": w, "height": h, "step_vi_s": round(m["step_vi_s"], 3),
+                     "peak_rss_gib": round(m["peak_rss_gib"], 2), "estimate_gib": round(est.total / GiB, 2),
+                     "n_gaussians": m["n_gaussians"], "wall_s": round(time.perf_counter() - t0, 1)})
+        print(json.dumps(rows[-1]), flush=True)
+    print(json.dumps({"schedule": SCHEDULE, "rows": rows}))
+
+
+if __name__ == "__main__":
+    main()
