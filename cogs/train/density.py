@@ -63,8 +63,10 @@ def accumulate(state: dict[str, Tensor], means2d_grad: Tensor, radii: Tensor, wi
     g = means2d_grad.detach().clone()
     g[:, 0] *= 0.5 * width
     g[:, 1] *= 0.5 * height
-    state["grad2d"][vis] += g[vis].norm(dim=-1)
-    state["count"][vis] += 1
+    # Masked adds without boolean indexing (which serialises on a nonzero): adding exact
+    # zeros elsewhere changes nothing.
+    state["grad2d"] += torch.where(vis, g.norm(dim=-1), 0.0)
+    state["count"] += vis
 
 
 def refine(
