@@ -287,6 +287,7 @@ MAX_SH_DEGREE = 3
 ADDED: dict[tuple[str, str], str] = {
     ("TrainConfig", "refit"): "the pose refit after stage VI (2026-11-25)",
     ("LossWeights", "compose_rgb"): "the compositional RGB term's weight, 1 before it was a setting (2026-11-25)",
+    ("HumanConfig", "visibility_max_frames"): "a bound on the frames visibility is counted on (2026-11-25)",
 }
 """(dataclass, key) of settings added after runs were written: an older config.yaml that
 lacks one takes its default, which reproduces what that run did (or, for a new stage,

@@ -109,6 +109,11 @@ class HumanConfig:
     visibility_epsilon: float = 0.01
     """chi_it needs the Gaussian's summed compositing weight inside the human mask (in
     pixel units) above this."""
+    visibility_max_frames: int = 120
+    """The visibility scores are counted on at most this many training frames, evenly
+    spaced (counts scaled to the whole), so refreshing them costs a bounded number of
+    renders however long the clip; 0 counts on every frame. A cost bound, not a tuned
+    value (the demo's 84 training frames are all used)."""
     visibility_full_frames: int = 5
     """v_i = min(1, training frames that see Gaussian i / this): a Gaussian seen in this many
     frames counts as observed and is free, and only parts few frames see are held to the
@@ -567,13 +572,18 @@ def compute_visibility(
     backend: str = "auto",
 ) -> Tensor:
     """v_i = (1/|T|) sum_t chi_it over the given training frames (CoGS Sec. visibility),
-    or min(1, sum_t chi_it / N) with `visibility_full_frames` = N > 0.
+    or min(1, sum_t chi_it / N) with `visibility_full_frames` = N > 0; counted on at most
+    `visibility_max_frames` of them, evenly spaced, scaled to the whole.
 
     The human is rendered alone; its compositing weights are gathered inside
     (human mask and not object mask) by one backward pass per frame.
     """
     from cogs.branches.splatback import splat_statistics
 
+    every = list(frames)
+    cap = human.cfg.visibility_max_frames
+    if cap > 0 and len(every) > cap:
+        frames = [every[i] for i in np.linspace(0, len(every) - 1, cap).round().astype(int)]
     with torch.no_grad():
         state = human.decode()
     counts = torch.zeros(len(human), device=human.means.device)
@@ -588,4 +598,8 @@ def compute_visibility(
         depth = (posed.means @ viewmats[t][:3, :3].T + viewmats[t][:3, 3])[:, 2]
         counts += visibility_indicator(contrib, means2d, depth > 0, mask, human.cfg.visibility_epsilon).float()
     n_full = human.cfg.visibility_full_frames
-    return (counts / n_full).clamp(max=1.0) if n_full > 0 else counts / max(len(frames), 1)
+    if n_full <= 0:  # the fraction of the frames (a subset's estimates the whole's)
+        return counts / max(len(frames), 1)
+    if len(frames) < len(every):  # a subset's count stands for every training frame's
+        counts = counts * (len(every) / len(frames))
+    return (counts / n_full).clamp(max=1.0)
