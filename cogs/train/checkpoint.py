@@ -34,6 +34,8 @@ class RunState:
     step: int = 0  # completed steps of that stage
     history: list[dict] = field(default_factory=list)
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    stage_cpu_seconds: dict[str, float] = field(default_factory=dict)
+    """Processor time per stage (all threads): beside stage_seconds, how busy the cores were."""
     density_events: list[dict] = field(default_factory=list)
 
 

@@ -166,11 +166,13 @@ class Trainer:
                 started, t0 = time.perf_counter(), self.state.step
                 info = ""
                 while self.state.step < n:
-                    tic = time.perf_counter()
+                    tic, cpu = time.perf_counter(), time.process_time()
                     it = self.state.step
                     logged = self._refit_step(it) if spec.kind == "refit" else self._step(spec, it)
                     self.state.step += 1
-                    self.state.stage_seconds[spec.name] = self.state.stage_seconds.get(spec.name, 0.0) + time.perf_counter() - tic
+                    st = self.state
+                    st.stage_seconds[spec.name] = st.stage_seconds.get(spec.name, 0.0) + time.perf_counter() - tic
+                    st.stage_cpu_seconds[spec.name] = st.stage_cpu_seconds.get(spec.name, 0.0) + time.process_time() - cpu
                     info = logged or info
                     bar.update(task, completed=self.state.step, rate=rate_text(self.state.step - t0, started), info=info)
                     if not bar.console.is_terminal and (self.state.step % 25 == 0 or self.state.step == n):
@@ -394,5 +396,7 @@ class Trainer:
             "stages": [s.name for s in self.stages[: self.state.stage]],
             "train_seconds": sum(self.state.stage_seconds.values()),
             "stage_seconds": dict(self.state.stage_seconds),
+            "stage_cpu_utilisation": {k: round(self.state.stage_cpu_seconds[k] / v, 3)
+                                      for k, v in self.state.stage_seconds.items() if v > 0 and k in self.state.stage_cpu_seconds},
             "n_gaussians": self.model.counts(),
         }
