@@ -95,3 +95,21 @@ def test_every_stage_and_the_refit_make_no_tensor_on_an_implicit_device(small_sy
     events = {e["branch"] for e in trainer.state.density_events}
     assert events == {"human", "object", "scene"}
     assert all(p.device.type == "cpu" for p in trainer.model.parameters())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device (runs where one is lent)")
+def test_training_and_rendering_on_cuda(small_synthetic, tmp_path):
+    """Every stage and the refit with the model on the GPU (gsplat), then the model loads
+    on either device and renders the same picture within gsplat's tolerance."""
+    run = tmp_path / "run"
+    assert main(["train", "--scene", str(small_synthetic), "--out", str(run), "--device", "cuda", "--set", *TINY]) == 0
+    summary = json.loads((run / "train_summary.json").read_text())
+    assert summary["stages"][-1] == "refit"
+    scene = load_scene(small_synthetic)
+    vm, K = _camera(scene, 0)
+    with torch.no_grad():
+        on_gpu = Model.load(run, device="cuda").render(vm.cuda(), K.cuda(), scene.width, scene.height, 0)
+        on_cpu = Model.load(run, device="cpu").render(vm, K, scene.width, scene.height, 0)
+    assert on_gpu.rgb.device.type == "cuda"
+    assert (on_gpu.rgb.cpu() - on_cpu.rgb).abs().mean() < 2e-3
+    assert main(["eval", "--run", str(run), "--device", "cuda", "--no-renders", "--pose-fit-steps", "2"]) == 0
