@@ -484,22 +484,17 @@ def _check_body(path: Path, rep: _Report, ids, model_in_meta) -> None:
         if not _numeric(data[key]):
             rep.add(path, f"`{key}` must hold numbers, got dtype {data[key].dtype}")
     pose, transl, shape = data["pose"], data["transl"], data["shape"]
-    if _numeric(pose):
-        if pose.ndim != 3 or pose.shape[1:] != (info.n_bones, 3):
-            rep.add(path, f"`pose` must be [T, {info.n_bones}, 3] for {model}, got {list(pose.shape)}")
-        elif T and len(pose) != T:
-            rep.add(path, f"`pose` has {len(pose)} frames but the scene has {T} images")
+    for key, arr, tail, form in (("pose", pose, (info.n_bones, 3), f"[T, {info.n_bones}, 3] for {model}"),
+                                 ("transl", transl, (3,), "[T, 3]")):
+        if not _numeric(arr):
+            continue
+        if arr.ndim != 1 + len(tail) or arr.shape[1:] != tail:
+            rep.add(path, f"`{key}` must be {form}, got {list(arr.shape)}")
+        elif T and len(arr) != T:
+            rep.add(path, f"`{key}` has {len(arr)} frames but the scene has {T} images")
         else:
-            for fid in _nonfinite_frames(pose, ids):
-                rep.add(path, "`pose` has non-finite numbers", fid)
-    if _numeric(transl):
-        if transl.ndim != 2 or transl.shape[1] != 3:
-            rep.add(path, f"`transl` must be [T, 3], got {list(transl.shape)}")
-        elif T and len(transl) != T:
-            rep.add(path, f"`transl` has {len(transl)} frames but the scene has {T} images")
-        else:
-            for fid in _nonfinite_frames(transl, ids):
-                rep.add(path, "`transl` has non-finite numbers", fid)
+            for fid in _nonfinite_frames(arr, ids):
+                rep.add(path, f"`{key}` has non-finite numbers", fid)
     if _numeric(shape):
         if shape.shape != (info.n_shape,):
             rep.add(path, f"`shape` must have {info.n_shape} values for {model}, got {list(shape.shape)}")
