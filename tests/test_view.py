@@ -142,6 +142,53 @@ def test_each_step_sends_the_human_and_object_as_cogs_poses_them_and_never_the_s
         viewer.close()
 
 
+def test_play_walks_the_timeline_in_order_and_pause_stops_it(run):
+    from cogs.use.view import View
+
+    viewer = View(run_dir=run, port=free_port()).start()
+    try:
+        viewer.speed.value = "4"
+        viewer._toggle_play()  # the Play button's callback
+        assert viewer.play_button.label == "Pause"
+        deadline = time.monotonic() + 120
+        while len(viewer.timings) < 4:
+            assert time.monotonic() < deadline, "playing never advanced"
+            time.sleep(0.05)
+        viewer._toggle_play()
+        assert viewer.play_button.label == "Play"
+        sent = [t["step"] for t in viewer.timings[:4]]
+        assert sent == [1, 2, 3, 4]  # every step in order, none skipped
+        k = viewer.shown(timeout=60)
+        assert k is not None and viewer.slider.value == k
+    finally:
+        viewer.close()
+
+
+def test_the_viewer_makes_no_tensor_on_an_implicit_device(run):
+    """With the default device set to `meta`, a tensor made without the model's device fails
+    beside the model's CPU tensors: loading, posing a new motion, sending a step, the exact
+    image's camera."""
+    from cogs.use.view import RENDERERS, View
+
+    torch.set_default_device("meta")
+    try:
+        viewer = View(run_dir=run, port=free_port(), motion="anny:walk:0.5", object="hand-left").start()
+        try:
+            viewer.slider.value = 3
+            assert viewer.shown(timeout=60) == 3
+            viewer.renderer.value = RENDERERS[1]
+            viewer.show_skeleton.value = viewer.show_trajectory.value = True
+            viewer.slider.value = 4
+            assert viewer.shown(timeout=60) == 4
+            vm, K = viewer.cameras.viewmats[4], viewer.cameras.Ks[4]
+            viewer._render_image(vm, K, 32, 24, 4)
+        finally:
+            viewer.close()
+    finally:
+        torch.set_default_device("cpu")
+    assert viewer.timings and all(t["splats"] > 0 for t in viewer.timings[:1])
+
+
 def _start(run: Path, port: int, *args: str, log: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.Popen([sys.executable, "-m", "cogs.cli", "view", "--run", str(run), "--port", str(port), *args],
@@ -201,7 +248,8 @@ def test_the_page_shows_the_scene_and_the_time_slider_moves_the_person(run, tmp_
     """Headless Chromium (software WebGL) opens `cogs view`, waits for the scene, and moves
     the time slider through the page: the canvas is not blank, and between the two steps it
     changes where cogs' own renderer puts the person (and the object) at either step, and
-    nowhere else. The exact renderer then shows cogs' own image behind the scene."""
+    nowhere else. The exact renderer then shows cogs' own image at the page's camera, and
+    the camera button takes the view to the training camera of the current frame."""
     chromium, driver_path = _browser()
     from PIL import Image
     from selenium import webdriver
@@ -321,7 +369,21 @@ def test_the_page_shows_the_scene_and_the_time_slider_moves_the_person(run, tmp_
         err_exact = np.abs(exact - want)[seen].mean()
         err_splats = np.abs(second - want)[seen].mean()
         assert err_exact < 5 and err_exact < 0.5 * err_splats, (err_exact, err_splats)  # 0..255 per channel
-        Image.fromarray(np.concatenate([first, second, exact], 1).astype(np.uint8)).save(tmp_path / "steps.png")
+
+        # "Go to the training camera": the view jumps to the last step's training camera.
+        browser.find_element(By.XPATH, "//button[contains(., 'Go to the training camera')]").click()
+        wait.until(lambda _: np.abs(shot() - exact)[seen].mean() > 5)
+        jumped = settled()
+        seen &= visible()[:H, :W]
+        wxyz, position, fov = browser_camera(scene.cameras.world_to_camera[last_step], scene.cameras.K[last_step],
+                                             scene.height)
+        vm15, K15 = cogs_camera(wxyz, position, fov, W, H)
+        with torch.no_grad():
+            want = model.render(torch.as_tensor(vm15, dtype=torch.float32), torch.as_tensor(K15, dtype=torch.float32), W,
+                                H, last_step).rgb.clamp(0, 1).numpy() * 255
+        err_jump = np.abs(jumped - want)[seen].mean()
+        assert err_jump < 5, err_jump
+        Image.fromarray(np.concatenate([first, second, exact, jumped], 1).astype(np.uint8)).save(tmp_path / "steps.png")
     finally:
         browser.quit()
         assert _stop(proc) == 0

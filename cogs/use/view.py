@@ -219,7 +219,7 @@ class Viewer:
         self._busy = False
         self._dirty_clients: set[int] = set()  # clients whose exact image is out of date
         self._playing = False
-        self._step_ms: list[float] = []
+        self.timings: list[dict] = []  # per step sent: re-posing, queueing for the browser (ms)
         self._build_scene()
         self._build_gui()
         self._set_initial_camera(0)
@@ -413,6 +413,7 @@ class Viewer:
         exact = self._exact()
         moving = tuple(b for b in ("human", "object") if b in self.have and self.toggles[b].value and not exact)
         arrays = {name: self._arrays(s) for name, s in self._splats(moving, k).items()} if moving else {}
+        t1 = time.perf_counter()
         with self.server.atomic():
             for name, handle in self.handles.items():
                 if name in arrays:
@@ -424,9 +425,10 @@ class Viewer:
                 pose = self._object_pose(k)
                 self.object_axes.wxyz, self.object_axes.position = pose["wxyz"], pose["position"]
             ms = 1000 * (time.perf_counter() - t0)
-            self._step_ms.append(ms)
             self.status.content = self._status_text(k, ms)
         self.server.flush()
+        self.timings.append({"step": k, "pose_ms": 1000 * (t1 - t0), "queue_ms": 1000 * (time.perf_counter() - t1),
+                             "splats": sum(len(a["centers"]) for a in arrays.values())})
 
     @torch.no_grad()
     def _render_for(self, client_id: int, k: int) -> None:
@@ -441,6 +443,16 @@ class Viewer:
         W = self.image_width
         H = max(16, int(round(W * cam.image_height / cam.image_width)))
         vm, K = cogs_camera(cam.wxyz, cam.position, cam.fov, W, H)
+        img, depth = self._render_image(vm, K, W, H, k)
+        client.scene.set_background_image(img, format="jpeg", depth=depth)
+        client.flush()
+        took = time.perf_counter() - t0
+        self.status.content = f"{self._status_text(k, None)} · exact image {W}x{H} in {took:.1f} s"
+
+    @torch.no_grad()
+    def _render_image(self, vm: np.ndarray, K: np.ndarray, W: int, H: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Step k by cogs' rasterizer, the visible branches only: (RGB uint8 [H, W, 3], camera
+        depth [H, W] in metres, far where nothing opaque was hit)."""
         names = tuple(b for b in self.have if self.toggles[b].value)
         frame, poses = self._poses(k)
         bg = torch.zeros(3, dtype=torch.float32, device=self.dev)
@@ -449,10 +461,7 @@ class Viewer:
                               branches=names, background=bg, poses=poses, prepared=self.prepared)
         img = (r.rgb.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
         depth = r.depth.where(r.alpha > 0.5, torch.full_like(r.depth, 1e3))[..., 0].cpu().numpy()
-        client.scene.set_background_image(img, format="jpeg", depth=depth)
-        client.flush()
-        took = time.perf_counter() - t0
-        self.status.content = f"{self._status_text(k, None)} · exact image {W}x{H} in {took:.1f} s"
+        return img, depth
 
     def _play_loop(self) -> None:
         """Advance the slider at the chosen speed, never faster than steps are sent."""
