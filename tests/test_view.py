@@ -125,6 +125,16 @@ def test_each_step_sends_the_human_and_object_as_cogs_poses_them_and_never_the_s
             np.testing.assert_array_equal(h.centers, want[name].means.numpy())
             np.testing.assert_allclose(h.covariances, covariances(want[name].quats, want[name].scales).numpy(),
                                        atol=2e-3 * float(want[name].scales.max() ** 2), rtol=2e-3)
+        # Overlays: the skeleton joins the posed bone heads, the object's axes sit at its pose.
+        viewer.show_skeleton.value = viewer.show_trajectory.value = True
+        assert viewer.shown(timeout=60) == k
+        h = viewer.model.human
+        with torch.no_grad():
+            _, joints = h.body.bone_transforms(*poses["human"], h.shape)
+        J = joints[0].numpy()
+        bones = [(p, j) for j, p in enumerate(h.body.bone_parents) if p >= 0]
+        np.testing.assert_allclose(viewer.skeleton.points, np.stack([[J[p], J[j]] for p, j in bones]), atol=1e-6)
+        np.testing.assert_allclose(viewer.object_axes.position, poses["object"][0].numpy(), atol=1e-6)
         # The object rides on the right wrist: it moved with the walk.
         assert float(poses["object"][0].sub(viewer.obj.translation[0]).norm()) > 0.1
         # The scene's splats went out once, when the page was built.

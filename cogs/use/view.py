@@ -203,7 +203,7 @@ class Viewer:
             self.camera_name = "training camera"
         else:
             self.cameras = camera_path("orbit", self.n, None, model, motion, play.up, None, play.fps)
-            self.camera_name = "orbit camera (no scene found)"
+            self.camera_name = "orbit camera"  # no scene found: a circle round the person
 
         logging.getLogger("websockets").setLevel(logging.WARNING)  # one line per connection otherwise
         self.server = viser.ViserServer(host=host, port=port, label="cogs", verbose=False)
@@ -266,11 +266,15 @@ class Viewer:
             self.object_axes = sc.add_frame("/overlays/object_pose", axes_length=0.15, axes_radius=0.006,
                                             visible=False, **self._object_pose(0))
 
-    def _skeleton_points(self, k: int) -> np.ndarray:
+    def _joints(self, k: int) -> np.ndarray:
+        """[J, 3] the body's joints (bone heads, world) at step k."""
         h, m = self.model.human, self.play.motion
         with torch.no_grad():
             _, joints = h.body.bone_transforms(m.pose[k : k + 1], m.transl[k : k + 1], h.shape)
-        J = joints[0].detach().cpu().numpy()
+        return joints[0].detach().cpu().double().numpy()
+
+    def _skeleton_points(self, k: int) -> np.ndarray:
+        J = self._joints(k)
         return np.stack([[J[p], J[j]] for p, j in self._bones]).astype(np.float32)
 
     def _object_pose(self, k: int) -> dict:
@@ -293,22 +297,25 @@ class Viewer:
             self.show_trajectory = gui.add_checkbox("Object trajectory", initial_value=False,
                                                     disabled=self.trajectory is None)
         with gui.add_folder("Camera"):
-            self.jump = gui.add_button(f"Go to the {self.camera_name.split(' (')[0]}")
+            self.jump = gui.add_button(f"Go to the {self.camera_name}")
         self.renderer = gui.add_dropdown("Renderer", RENDERERS, initial_value=RENDERERS[0])
 
         self.slider.on_update(lambda _: self._request(int(self.slider.value)))
         self.play_button.on_click(lambda _: self._toggle_play())
-        for name, box in self.toggles.items():
-            box.on_update(lambda _, name=name: self._on_toggle(name))
+        for box in self.toggles.values():
+            box.on_update(lambda _: self._restyled())
         self.show_skeleton.on_update(lambda _: self._overlays())
         self.show_trajectory.on_update(lambda _: self._overlays())
         self.jump.on_click(lambda event: self._jump(event.client))
         self.renderer.on_update(lambda _: self._on_renderer())
 
     def _status_text(self, k: int, ms: float | None) -> str:
-        frame, _ = self._poses(k)
+        """The status line; "frame K / N" leads it once step K has been sent (scripts and the
+        browser test wait for it)."""
+        m = self.play.motion
+        clip = f" · clip frame {self._poses(k)[0]}" if m is not None and m.clip_time is not None else ""
         took = f" · {ms:.0f} ms" if ms is not None else ""
-        return f"frame {k} / {self.n - 1} · clip frame {frame}{took}"
+        return f"frame {k} / {self.n - 1}{clip}{took}"
 
     def _request(self, k: int) -> None:
         with self._cond:
@@ -321,7 +328,7 @@ class Viewer:
             self._cond.notify_all()
         self.play_button.label = "Pause" if self._playing else "Play"
 
-    def _on_toggle(self, name: str) -> None:
+    def _restyled(self) -> None:
         with self._cond:
             self._restyle = True  # re-pose what became visible; redraw the server image
             self._dirty_clients.update(self.server.get_clients())
@@ -334,13 +341,14 @@ class Viewer:
         if not self._exact():
             for c in self.server.get_clients().values():
                 c.scene.set_background_image(None)
-        self._on_toggle("")
+        self._restyled()
 
     def _overlays(self) -> None:
         if self.skeleton is not None:
             self.skeleton.visible = bool(self.show_skeleton.value)
         if self.trajectory is not None:
             self.trajectory.visible = self.object_axes.visible = bool(self.show_trajectory.value)
+        self._restyled()  # the skeleton is only posed while shown
 
     # -- cameras ----------------------------------------------------------------------
     def _camera(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -348,10 +356,9 @@ class Viewer:
         The orbit point lies on the optical axis at the depth of the body's root."""
         vm, K = self.cameras.viewmats[k], self.cameras.Ks[k]
         wxyz, pos, fov = browser_camera(vm, K, self.cameras.height)
-        m = self.play.motion
         depth = 2.0
-        if m is not None:
-            root = m.transl[k].detach().cpu().double().numpy()
+        if self.play.motion is not None and self.model.human is not None:
+            root = self._joints(k)[0]
             depth = max(float((vm[:3, :3] @ root + vm[:3, 3])[2]), 0.5)
         return wxyz, pos, pos + depth * vm[2, :3], fov
 
@@ -419,7 +426,7 @@ class Viewer:
                 if name in arrays:
                     handle.set_gaussians(**arrays[name])
                 handle.visible = bool(self.toggles[name].value) and not exact
-            if self.skeleton is not None:
+            if self.skeleton is not None and self.skeleton.visible:
                 self.skeleton.points = self._skeleton_points(k)
             if self.object_axes is not None:
                 pose = self._object_pose(k)
@@ -444,6 +451,8 @@ class Viewer:
         H = max(16, int(round(W * cam.image_height / cam.image_width)))
         vm, K = cogs_camera(cam.wxyz, cam.position, cam.fov, W, H)
         img, depth = self._render_image(vm, K, W, H, k)
+        if not self._exact():  # switched back to the splats while this rendered
+            return
         client.scene.set_background_image(img, format="jpeg", depth=depth)
         client.flush()
         took = time.perf_counter() - t0
