@@ -75,7 +75,7 @@ def test_a_port_in_use_is_refused_naming_the_option(run, capsys):
     (["--fps", "0"], "--fps"),
     (["--device", "tpu"], "--device"),
     (["--image-width", "3"], "--image-width"),
-    (["--host", "no.such.host.invalid"], "--host"),
+    (["--host", "192.0.2.1"], "--host"),  # TEST-NET-1: an address of no machine here
 ])
 def test_bad_options_are_one_line_errors_before_anything_is_served(run, capsys, args, names):
     port = free_port()
