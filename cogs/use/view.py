@@ -7,11 +7,13 @@ The static scene's splats are sent once; the human and the object are re-posed a
 each step of the timeline (`--motion` and `--object` as in `cogs render`, so a new motion
 plays here too). The page's panel holds:
 
-* Timeline: the "Frame" slider (keyboard too: arrows, Home, End), Play / Pause, the speed,
-  and a status line "frame K / N" that appears once step K has been sent;
+* Timeline: the "Frame" slider and its number box, Play / Pause, the speed, and a status
+  line "frame K / N" that appears once step K has been sent (scripts can type a step into
+  the box and wait for that line, as tests/test_view.py does);
 * Show: one toggle per branch (human, object, scene), and overlays of the body skeleton
   and of the object's trajectory with its current pose;
-* Camera: jump to the training camera of the current frame (new clients start there);
+* Camera: jump to the training camera of the current frame (a page opens at the first
+  step's; without the run's scene, a circle round the person stands in for them);
 * Renderer: viser's splatting in the browser (fast, approximate: its own sorting and
   blending), or an image from cogs' own rasterizer rendered on the server at the
   browser's camera (exact: what the metrics measure), shown behind the overlays.
