@@ -13,6 +13,7 @@
     cogs batch        many sequences (a YAML manifest) through prepare -> train -> eval on Ray
     cogs render       a trained run from new cameras, with new body motions and object paths
     cogs export       a trained run as 3DGS PLYs, an animatable glTF (.glb) and arrays (.npz)
+    cogs view         a trained run in the browser: a timeline, branch toggles, new motions (viser)
 
 Each sub-command is a dataclass whose fields are its documented options (tyro turns them
 into flags); `run()` does the work. Errors the user can cause are `UserError`s: printed
@@ -82,6 +83,7 @@ def _commands() -> dict[str, type]:
     from cogs.preprocess.importers import Import
     from cogs.use.export import Export
     from cogs.use.render import Render
+    from cogs.use.view import View
 
     return {
         "demo": Demo,
@@ -97,6 +99,7 @@ def _commands() -> dict[str, type]:
         "batch": Batch,
         "render": Render,
         "export": Export,
+        "view": View,
     }
 
 

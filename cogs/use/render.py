@@ -20,81 +20,49 @@ import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
 
 import numpy as np
 import torch
-import tyro
 
 from cogs.errors import UserError
+from cogs.use.playback import PlaybackOptions
 
 log = logging.getLogger("cogs")
 
 BRANCH_NAMES = ("human", "object", "scene")
 
 
-@dataclass
-class Render:
+@dataclass(kw_only=True)
+class Render(PlaybackOptions):
     """Render a trained run from new cameras, with new body motions and object
     trajectories: a video (.mp4) or a folder of PNG frames."""
 
-    run_dir: Annotated[Path, tyro.conf.arg(name="run")]
-    """Run folder written by `cogs train`."""
     out: Path
     """An .mp4 file, or a folder (created) for PNG frames."""
     camera: str = "train"
     """train | orbit | spiral | novel | PATH.json: the training cameras; a circle or a
     spiral round the person; the synthetic scene's novel-view cameras; a camera path
     (keys in the scene format's convention, interpolated smoothly)."""
-    motion: str = "run"
-    """run | anny:walk[:N] | synth:NAME | PATH.npz: the run's body poses; the walk cycle
-    shipped with anny (N cycles, default 2); the synthetic generator's choreography
-    (full, walk, pickup, turn, carry); a native body.npz, or an SMPL-family sequence
-    (AMASS `poses` [T, >=66] and `trans`) retargeted onto the run's body model."""
-    object: str = "run"
-    """run | hand-left | hand-right | static | none | PATH.json: the trained trajectory;
-    rigidly attached to a hand with the offset it has at --attach-frame; held at that
-    frame's pose; removed; a trajectory in the object.json convention."""
     branches: list[str] = field(default_factory=lambda: list(BRANCH_NAMES))
     """Branches to render (`scene` alone is the clean plate: the room without person and object)."""
     frames: str | None = None
     """A:B: render only output frames A..B-1 (Python slice; either end may be left out)."""
-    fps: float | None = None
-    """Output frame rate (default: the motion's own; the run's clip rate for `--motion run`)."""
     size: str | None = None
     """WxH output size in pixels (default: the scene's image size)."""
-    attach_frame: int | None = None
-    """The run's frame whose object-to-hand offset --object hand-* keeps, or whose pose
-    --object static holds (default: the frame where the object sits most rigidly in the
-    hand; 0 for static)."""
-    hand_bone: str | None = None
-    """The bone --object hand-* attaches to (default: the body model's wrist)."""
-    start_frame: int | None = None
-    """Where a motion from elsewhere starts: at the person's place and heading in this
-    frame of the run (default 0: it takes the clip's place from its start)."""
     depth: bool = False
     """Also write depth (metres; a colour-mapped video beside an .mp4)."""
     alpha: bool = False
     """Also write each rendered branch's alpha."""
     background: str = "black"
     """black | white | R,G,B in [0, 1]."""
-    scene: Path | None = None
-    """The run's scene, where run.json's path no longer holds it (needed by --camera
-    train/novel, and for the default size, frame rate and orbit radius)."""
-    checkpoint: str | None = None
-    """Render this file of RUN/checkpoints instead of the newest."""
     overwrite: bool = False
     """Replace an existing --out."""
-    device: str = "cpu"
-    """Where to render: `cpu`, or `cuda` / `cuda:N`."""
 
     def run(self) -> int:
         opts = self._check_options()
         return render(self, **opts)
 
     def _check_options(self) -> dict:
-        from cogs.devices import check_device
-
         video = self.out.suffix.lower() == ".mp4"
         if self.out.suffix and not video:
             raise UserError(f"--out {self.out}: expected an .mp4 file or a folder (no suffix)")
@@ -104,18 +72,10 @@ class Render:
         if unknown or not self.branches or len(set(self.branches)) != len(self.branches):
             raise UserError(f"--branches {' '.join(self.branches)}: give distinct names among {', '.join(BRANCH_NAMES)}")
         frames = parse_frames(self.frames)
-        if self.fps is not None and not (np.isfinite(self.fps) and 0 < self.fps <= 240):
-            raise UserError(f"--fps {self.fps}: must be in (0, 240]")
         size = parse_size(self.size)
         background = parse_background(self.background)
-        for name in ("attach_frame", "start_frame"):
-            v = getattr(self, name)
-            if v is not None and v < 0:
-                raise UserError(f"--{name.replace('_', '-')} {v}: must be a frame of the run (>= 0)")
-        if self.checkpoint is not None and not (self.run_dir / "checkpoints" / self.checkpoint).is_file():
-            raise UserError(f"--checkpoint {self.checkpoint}: no such file in {self.run_dir / 'checkpoints'}")
-        return {"video": video, "frames": frames, "size": size, "background": background,
-                "device": check_device(self.device)}
+        device = self.check_playback_options()
+        return {"video": video, "frames": frames, "size": size, "background": background, "device": device}
 
 
 def parse_frames(spec: str | None) -> tuple[int | None, int | None] | None:
@@ -152,74 +112,23 @@ def parse_background(spec: str) -> tuple[float, float, float]:
     return rgb  # type: ignore[return-value]
 
 
-def _find_scene(cmd: Render):
-    """The run's scene (metadata and cameras; no image is read), or None when there is none."""
-    from cogs.data.io import read_json
-    from cogs.data.scene import load_scene
-
-    path = cmd.scene
-    if path is None:
-        info = cmd.run_dir / "run.json"
-        named = read_json(info).get("scene") if info.is_file() else None
-        path = Path(named) if named and Path(named).exists() else None
-    elif not (path / "scene.json").is_file():
-        raise UserError(f"--scene {path}: no scene.json there")
-    if path is None:
-        return None
-    scene = load_scene(path, validate=False)
-    from cogs.train.run_folder import check_fingerprint
-
-    info = cmd.run_dir / "run.json"
-    if info.is_file():
-        check_fingerprint(cmd.run_dir, read_json(info).get("fingerprint"), scene)
-    return scene
-
-
 @torch.no_grad()
 def render(cmd: Render, video: bool, frames, size, background, device: str) -> int:
     from cogs.log import track
-    from cogs.model import Model
     from cogs.use.cameras import camera_path
-    from cogs.use.motion import load_motion, place, resample, select
-    from cogs.use.objects import hand_bone, object_path
-    from cogs.use.posing import world_up
+    from cogs.use.motion import select
+    from cogs.use.objects import object_path
+    from cogs.use.playback import find_scene, load_model, load_playback, timestep_poses
 
-    ckpt = cmd.run_dir / "checkpoints" / cmd.checkpoint if cmd.checkpoint else None
-    model = Model.load(cmd.run_dir, device=device, checkpoint=ckpt)
-    scene = _find_scene(cmd)
+    model = load_model(cmd, device)
+    scene = find_scene(cmd.run_dir, cmd.scene)
     have = model.available()
     missing = [b for b in cmd.branches if b not in have]
     if missing:
         raise UserError(f"--branches: the run has no {', '.join(missing)} branch (it has {', '.join(have)})")
-    h = model.human
     T = model.n_frames
-    for name in ("attach_frame", "start_frame"):
-        v = getattr(cmd, name)
-        if v is not None and v >= T:
-            raise UserError(f"--{name.replace('_', '-')} {v}: out of range, the run has frames 0..{T - 1}")
-    fps_run = scene.fps if scene is not None else _run_fps(cmd.run_dir)
-    want_object = "object" in cmd.branches and cmd.object != "none"
-    if cmd.object.startswith("hand-") and want_object and h is not None:
-        hand_bone(h.body, cmd.object.split("-")[1], cmd.hand_bone)  # a bad bone fails before any work
-    elif cmd.hand_bone is not None and h is not None:
-        hand_bone(h.body, "right", cmd.hand_bone)
-
-    motion = load_motion(cmd.motion, model, fps_run) if h is not None else None
-    up = world_up(h) if h is not None else np.array([0.0, 0.0, 1.0])
-    fps = cmd.fps or (motion.fps if motion is not None else fps_run)
-    if motion is not None:
-        motion = resample(motion, fps)
-    attach = cmd.attach_frame
-    obj_spec = cmd.object if want_object else "none"
-    if obj_spec.startswith("hand-") and attach is None:
-        from cogs.use.objects import auto_attach_frame
-
-        if model.object is None:
-            raise UserError(f"--object {obj_spec}: the run has no object branch (use --object none)")
-        attach = auto_attach_frame(model, hand_bone(h.body, obj_spec.split("-")[1], cmd.hand_bone))
-    if motion is not None and not motion.in_world:
-        start = cmd.start_frame if cmd.start_frame is not None else 0
-        motion = place(motion, h, start, up)
+    play = load_playback(cmd, model, scene, want_object="object" in cmd.branches)
+    motion, fps, up, obj_spec, attach = play.motion, play.fps, play.up, play.object, play.attach_frame
 
     if cmd.camera == "novel":  # one output frame per novel camera, at its own time
         cams = camera_path("novel", 0, scene, model, motion, up, size, fps)
@@ -255,14 +164,8 @@ def render(cmd: Render, video: bool, frames, size, background, device: str) -> i
     dev = model.device
     bg = torch.tensor(background, dtype=torch.float32, device=dev)
     rgb, depth, alpha = [], [], {b: [] for b in names}
-    clip_time = motion.clip_time if motion is not None else None
     for k in track(range(n), f"render {cmd.out.name}"):
-        poses = {}
-        if motion is not None:
-            poses["human"] = (motion.pose[k : k + 1], motion.transl[k : k + 1])
-        if obj is not None:
-            poses["object"] = (obj.translation[k], obj.quat[k])
-        frame = int(round(float(clip_time[k]))) if clip_time is not None else min(k, T - 1)
+        frame, poses = timestep_poses(motion, obj, k, T)
         vm = torch.as_tensor(cams.viewmats[k], dtype=torch.float32, device=dev)
         K = torch.as_tensor(cams.Ks[k], dtype=torch.float32, device=dev)
         r = model.render(vm, K, cams.width, cams.height, frame, branches=names, background=bg, poses=poses)
@@ -288,12 +191,6 @@ def render(cmd: Render, video: bool, frames, size, background, device: str) -> i
     write_json(meta, record)
     log.info("wrote %s (%d frames at %g fps, %dx%d)", cmd.out, n, fps, cams.width, cams.height)
     return 0
-
-
-def _run_fps(run: Path) -> float:
-    from cogs.use.export import run_fps
-
-    return run_fps(run)
 
 
 def _index(motion, idx: np.ndarray):
