@@ -201,8 +201,12 @@ def test_the_viewer_makes_no_tensor_on_an_implicit_device(run):
 
 def _start(run: Path, port: int, *args: str, log: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    # SIGINT back to its default in the child: pytest-xdist's workers ignore it, and a child
+    # inherits an ignored signal (Python then never raises KeyboardInterrupt), as would a
+    # viewer started from a non-interactive shell's background job.
     proc = subprocess.Popen([sys.executable, "-m", "cogs.cli", "view", "--run", str(run), "--port", str(port), *args],
-                            stdout=log.open("w"), stderr=subprocess.STDOUT, env=env, cwd=ROOT)
+                            stdout=log.open("w"), stderr=subprocess.STDOUT, env=env, cwd=ROOT,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 180
     while True:
         assert proc.poll() is None, f"cogs view exited:\n{log.read_text()}"
@@ -295,9 +299,10 @@ def test_the_page_shows_the_scene_and_the_time_slider_moves_the_person(run, tmp_
             return np.asarray(Image.open(io.BytesIO(canvas().screenshot_as_png)).convert("RGB")).astype(np.int16)
 
         def settled() -> np.ndarray:
-            """The canvas once two screenshots half a second apart agree (the splats sorted and drawn)."""
+            """The canvas once two screenshots half a second apart agree (the splats sorted and
+            drawn); on a loaded machine software WebGL may take minutes."""
             last = shot()
-            for _ in range(120):
+            for _ in range(480):
                 time.sleep(0.5)
                 now = shot()
                 if np.array_equal(now, last):
