@@ -49,10 +49,13 @@ def _host(a: np.ndarray, dtype=torch.float32) -> torch.Tensor:
     return torch.as_tensor(np.asarray(a), dtype=dtype, device=CPU)
 
 
-def _frame_tensors(scene: Scene, frames: list[int], masks: np.ndarray):
-    """Images [F, H, W, 3] in [0, 1], mask weights [F, H, W], cameras of `frames`."""
+def _frame_tensors(scene: Scene, frames: list[int], person: bool):
+    """Images [F, H, W, 3] in [0, 1], mask weights [F, H, W] (the person where the object
+    does not hide it, or the object), cameras of `frames` (only these frames converted)."""
     images = torch.from_numpy(np.ascontiguousarray(scene.images[frames])).float() / 255.0
-    weight = torch.from_numpy(np.ascontiguousarray(masks[frames])).float()
+    om = scene.object_masks[frames]
+    masks = scene.human_masks[frames] & ~om if person else om
+    weight = torch.from_numpy(np.ascontiguousarray(masks)).float()
     w2c = _host(scene.cameras.world_to_camera[frames])
     Ks = _host(scene.cameras.K[frames])
     return images, weight, w2c, Ks
@@ -82,7 +85,7 @@ def build_human(scene: Scene, cfg: BranchesConfig, backend: str = "auto", random
     human = HumanBranch(body, shape, seed, _host(scene.body.pose), _host(scene.body.transl), cfg.human,
                         train_frames=list(scene.split["train"]))
     frames = _frames_for_color(scene.split["train"], cfg.color_init_frames)
-    images, weight, w2c, Ks = _frame_tensors(scene, frames, scene.human_masks & ~scene.object_masks)
+    images, weight, w2c, Ks = _frame_tensors(scene, frames, person=True)
 
     def stats():
         with torch.no_grad():
@@ -157,7 +160,7 @@ def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto",
     obj = ObjectBranch(g, _host(centre, torch.float64), key_times, p, v, q, prior_t, prior_q, ocfg)
 
     frames = _frames_for_color(train, cfg.color_init_frames)
-    images, weight, w2c, Ks = _frame_tensors(scene, frames, scene.object_masks)
+    images, weight, w2c, Ks = _frame_tensors(scene, frames, person=False)
 
     def stats():
         for i, t in enumerate(frames):
