@@ -236,14 +236,16 @@ def silhouette_costs(frames: list, R_wc: np.ndarray, hyps_world: np.ndarray, pts
     return cost, trans
 
 
-def viterbi(unary: np.ndarray, pairwise: np.ndarray) -> np.ndarray:
-    """Index [T] per frame minimising sum_t unary[t, i_t] + sum_t pairwise[i_t, i_{t+1}]."""
+def viterbi(unary: np.ndarray, pairwise) -> np.ndarray:
+    """Index [T] per frame minimising sum_t unary[t, i_t] + sum_t pairwise(t)[i_t, i_{t+1}]
+    (``pairwise``: one [N, N] array for every step, or a function of the step t -> t + 1)."""
     T, N = unary.shape
-    assert pairwise.shape == (N, N)
     acc = unary[0].copy()
     back = np.zeros((T, N), np.int64)
     for t in range(1, T):
-        total = acc[:, None] + pairwise  # [from, to]
+        P = pairwise(t - 1) if callable(pairwise) else pairwise
+        assert P.shape == (N, N)
+        total = acc[:, None] + P  # [from, to]
         back[t] = np.argmin(total, axis=0)
         acc = total[back[t], np.arange(N)] + unary[t]
     path = np.zeros(T, np.int64)
@@ -268,6 +270,81 @@ def choose_proxy(frames: list, R_wc: np.ndarray, hyps_world: np.ndarray, sample:
     return best
 
 
+def ray_hits(kind: str, half: np.ndarray, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Distance [N] along each ray (origin [3], dirs [N, 3], object coordinates) to the
+    proxy's near surface; NaN where the ray misses it."""
+    if kind == "cuboid":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = (-half - origin) / dirs
+            b = (half - origin) / dirs
+        near = np.nanmax(np.minimum(a, b), axis=1)
+        far = np.nanmin(np.maximum(a, b), axis=1)
+        return np.where((near <= far) & (near > 0), near, np.nan)
+    o, d = origin / half, dirs / half  # the ellipsoid as the unit sphere
+    A, B, C = (d * d).sum(1), 2 * (d @ o), o @ o - 1.0
+    disc = B * B - 4 * A * C
+    with np.errstate(invalid="ignore"):
+        s = (-B - np.sqrt(disc)) / (2 * A)
+    return np.where((disc >= 0) & (s > 0), s, np.nan)
+
+
+class _Features:
+    """SIFT keypoints of the object inside each frame's mask, matched between frames."""
+
+    def __init__(self, images: np.ndarray, masks: np.ndarray):
+        import cv2
+
+        self.sift = cv2.SIFT_create(contrastThreshold=0.02)
+        self.matcher = cv2.BFMatcher(cv2.NORM_L2)
+        self.images, self.masks = images, masks
+        self.cache: dict[int, tuple[np.ndarray, np.ndarray | None]] = {}
+
+    def of(self, t: int) -> tuple[np.ndarray, np.ndarray | None]:
+        import cv2
+
+        if t not in self.cache:
+            m = cv2.dilate(self.masks[t].astype(np.uint8), np.ones((5, 5), np.uint8))
+            kp, desc = self.sift.detectAndCompute(cv2.cvtColor(self.images[t], cv2.COLOR_RGB2GRAY), m)
+            self.cache[t] = (np.array([k.pt for k in kp], dtype=np.float64).reshape(-1, 2), desc)
+        return self.cache[t]
+
+    def matches(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """Matched pixel positions [M, 2] in frame a and in frame b (Lowe's ratio test)."""
+        (pa, da), (pb, db) = self.of(a), self.of(b)
+        if da is None or db is None or len(da) < 2 or len(db) < 2:
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        good = [m[0] for m in self.matcher.knnMatch(da, db, k=2) if len(m) == 2 and m[0].distance < 0.8 * m[1].distance]
+        return pa[[m.queryIdx for m in good]], pb[[m.trainIdx for m in good]]
+
+
+def relative_rotation(feats: _Features, a: int, b: int, kind: str, half: np.ndarray, R_a: np.ndarray, t_a: np.ndarray, K: np.ndarray,
+                      min_inliers: int = 8) -> np.ndarray | None:
+    """The object's rotation from frame a to frame b in camera coordinates (R_b = D R_a), from
+    its features: those of frame a lifted onto the proxy posed at (R_a, t_a), then posed in
+    frame b (PnP, RANSAC). None with fewer than ``min_inliers`` consistent matches."""
+    import cv2
+
+    ua, ub = feats.matches(a, b)
+    if len(ua) < min_inliers:
+        return None
+    rays = np.c_[ua, np.ones(len(ua))] @ np.linalg.inv(K).T  # camera coordinates, z = 1
+    origin = -R_a.T @ t_a  # the camera centre in object coordinates
+    dirs = rays @ R_a  # R_a^T ray
+    s = ray_hits(kind, half, origin, dirs)
+    ok = np.isfinite(s)
+    if ok.sum() < min_inliers:
+        return None
+    X = origin + s[ok, None] * dirs[ok]
+    rvec0, _ = cv2.Rodrigues(R_a)
+    found, rvec, tvec, inl = cv2.solvePnPRansac(X, ub[ok], K, None, rvec=rvec0.copy(), tvec=t_a.reshape(3, 1).copy(), useExtrinsicGuess=True,
+                                                reprojectionError=max(3.0, 0.08 * K[0, 0] * float(np.max(half)) / max(t_a[2], 1e-6)),
+                                                iterationsCount=200, flags=cv2.SOLVEPNP_ITERATIVE)
+    if not found or inl is None or len(inl) < min_inliers or len(inl) < 0.4 * ok.sum():
+        return None
+    R_b, _ = cv2.Rodrigues(rvec)
+    return R_b @ R_a.T
+
+
 def _touches(mask: np.ndarray, other: np.ndarray | None) -> float:
     """Fraction of the mask's boundary that borders ``other`` (occlusion indicator)."""
     import cv2
@@ -277,6 +354,94 @@ def _touches(mask: np.ndarray, other: np.ndarray | None) -> float:
     m8 = mask.astype(np.uint8)
     edge = (cv2.dilate(m8, np.ones((3, 3), np.uint8)) - m8).astype(bool)
     return float(other[edge].mean()) if edge.any() else 0.0
+
+
+def _hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, eq_r_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """[T] camera depth of the fitted hand joint nearest the mask where one is within two
+    object radii of its centroid in the image (NaN elsewhere)."""
+    out = np.full(len(frames), np.nan)
+    for t, fm in enumerate(frames):
+        if fm is None:
+            continue
+        hp = hand_cam[t]
+        uv = hp[:, :2] / hp[:, 2:3] * K[0, 0] + K[:2, 2]
+        d = np.linalg.norm(uv - fm.centroid, axis=1)
+        k = int(np.argmin(d))
+        if d[k] < 2.0 * eq_r_px[t] + 0.02 * max(shape) and hp[k, 2] > 0:
+            out[t] = hp[k, 2]
+    return out
+
+
+def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit):
+    """Camera-frame poses of the chosen hypotheses with the proxy's metric size and each
+    frame's depth: (R [T, 3, 3], t [T, 3], depth [T], depth source [T], half-extents [3])."""
+    T = len(path)
+    R_obj_cam = np.einsum("tij,tjk->tik", R_wc, hyps[path])
+    z_unit = trans_unit[np.arange(T), path, 2]
+    ratio = hand_depth / np.where(has, z_unit, np.nan)
+    use = np.isfinite(ratio) & clear
+    if not use.any():
+        use = np.isfinite(ratio)
+    if use.any():
+        size = float(np.median(ratio[use]))
+    else:  # never near a hand: assume the object is as far as the person
+        ok = has & (root_cam[:, 2] > 0)
+        size = float(np.median(root_cam[ok, 2] / z_unit[ok]))
+    depth = np.full(T, np.nan)
+    source = ["interpolated"] * T
+    for t in range(T):
+        if not has[t]:
+            continue
+        if clear[t] or not np.isfinite(hand_depth[t]):
+            depth[t], source[t] = size * z_unit[t], "size"
+        else:
+            depth[t], source[t] = hand_depth[t], "hand"
+    ok = np.isfinite(depth)
+    depth = np.interp(np.arange(T), np.flatnonzero(ok), depth[ok])
+    # The placed centre's direction, interpolated over frames without a mask.
+    dirs = np.full((T, 3), np.nan)
+    for t in np.flatnonzero(has):
+        dirs[t] = trans_unit[t, path[t]] / trans_unit[t, path[t], 2]
+    for k in range(2):
+        if (~has).any():
+            dirs[~has, k] = np.interp(np.flatnonzero(~has), np.flatnonzero(has), dirs[has, k])
+    dirs[:, 2] = 1.0
+    return R_obj_cam, dirs * depth[:, None], depth, source, size * half_unit
+
+
+def _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps):
+    """Each frame's pose refined from its hypothesis on the full-resolution silhouette."""
+    R_obj_cam, t_obj_cam = R_obj_cam.copy(), t_obj_cam.copy()
+    pts = proxy_points(kind, half)
+    for t in range(len(masks)):
+        if not masks[t].any():
+            continue
+        scorer = _Scorer(masks[t], K, pts, margin=int(2 * eq_r_px[t]) + 4)
+        R_best, t_best = R_obj_cam[t], t_obj_cam[t].copy()
+        s_best, _ = scorer(R_best, t_best)
+        step_t, step_r = 0.03 * depth[t], 0.12
+        for _ in range(refine_steps):
+            improved = False
+            for axis in range(3):
+                for sign in (-1.0, 1.0):
+                    tc = t_best.copy()
+                    tc[axis] += sign * step_t * (0.3 if axis < 2 else 1.0)
+                    s, _ = scorer(R_best, tc)
+                    if s < s_best - 1e-6:
+                        s_best, t_best, improved = s, tc, True
+                    Rc = _axis_rotation(axis, sign * step_r) @ R_best
+                    s, _ = scorer(Rc, t_best)
+                    if s < s_best - 1e-6:
+                        s_best, R_best, improved = s, Rc, True
+            if not improved:
+                step_t *= 0.5
+                step_r *= 0.5
+                if step_r < 0.01:
+                    break
+        if source[t] == "hand":  # a partly hidden view: its outline says little about depth
+            t_best = t_best / t_best[2] * depth[t]
+        R_obj_cam[t], t_obj_cam[t] = R_best, t_best
+    return R_obj_cam, t_obj_cam
 
 
 def fit_object(
@@ -292,6 +457,8 @@ def fit_object(
     smooth_per_rad: float = 0.3,
     refine_steps: int = 40,
     proxy_frames: int = 6,
+    images: np.ndarray | None = None,
+    feature_per_rad: float = 1.0,
     on_frame=None,
 ) -> ObjectFit:
     """Initial object poses for every frame.
@@ -330,86 +497,37 @@ def fit_object(
     kind, half_unit, proxy_iou = choose_proxy(frames, R_wc, hyps[:: max(1, n_hypotheses // 300)], sample)
     pts_unit = proxy_points(kind, half_unit)
 
-    # 2. One rotation hypothesis per frame: silhouettes plus smooth turning in the world.
+    # 2. One rotation hypothesis per frame with a mask: silhouettes plus smooth turning in
+    # the world; then again with the turning its features measure between those frames.
     cost, trans_unit = silhouette_costs(frames, R_wc, hyps, pts_unit, on_frame=progress)
     weight = np.where(has, np.maximum(confidence, 0.05) * np.where(clear, 1.0, 0.5), 0.0)
-    path = viterbi(cost * weight[:, None], smooth_per_rad * rotation_distances(hyps))
-    R_obj_cam = np.einsum("tij,tjk->tik", R_wc, hyps[path])
-    z_unit = trans_unit[np.arange(T), path, 2]
+    idx = np.flatnonzero(has)
+    dist = rotation_distances(hyps)
+    hyp_flat = hyps.reshape(len(hyps), 9)
+    path = np.zeros(T, np.int64)
+    path[idx] = viterbi(cost[idx] * weight[idx, None], smooth_per_rad * dist)
+    hand_depth = _hand_depth(hand_cam, frames, K, eq_r_px, (H, W))
+    R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit)
+    R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
+    n_measured = 0
+    if images is not None and len(idx) >= 2:
+        feats = _Features(images, masks)
+        D = []
+        for a, b in zip(idx[:-1], idx[1:]):
+            Dc = relative_rotation(feats, int(a), int(b), kind, half, R_obj_cam[a], t_obj_cam[a], K)
+            D.append(None if Dc is None else R_wc[b].T @ Dc @ R_wc[a])
+        n_measured = sum(d is not None for d in D)
 
-    # 3. Metric size from frames where the object is at a hand, then the depth of each frame.
-    hand_depth = np.full(T, np.nan)
-    for t in range(T):
-        if not has[t]:
-            continue
-        hp = hand_cam[t]
-        uv = hp[:, :2] / hp[:, 2:3] * f + K[:2, 2]
-        d = np.linalg.norm(uv - frames[t].centroid, axis=1)
-        k = int(np.argmin(d))
-        if d[k] < 2.0 * eq_r_px[t] + 0.02 * max(H, W) and hp[k, 2] > 0:
-            hand_depth[t] = hp[k, 2]
-    ratio = hand_depth / np.where(has, z_unit, np.nan)
-    use = np.isfinite(ratio) & clear
-    if not use.any():
-        use = np.isfinite(ratio)
-    if use.any():
-        size = float(np.median(ratio[use]))
-    else:  # never near a hand: assume the object is as far as the person
-        ok = has & (root_cam[:, 2] > 0)
-        size = float(np.median(root_cam[ok, 2] / z_unit[ok]))
-    half = size * half_unit
+        def pairwise(k: int) -> np.ndarray:
+            if D[k] is None:
+                return smooth_per_rad * dist
+            tr = (np.einsum("ij,njk->nik", D[k], hyps).reshape(len(hyps), 9)) @ hyp_flat.T  # tr(R_j^T D R_i) at [i, j]
+            return feature_per_rad * np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+        path[idx] = viterbi(cost[idx] * weight[idx, None], pairwise)
+        R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit)
+        R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
     pts = proxy_points(kind, half)
-    depth = np.full(T, np.nan)
-    source = ["interpolated"] * T
-    for t in range(T):
-        if not has[t]:
-            continue
-        if clear[t] or not np.isfinite(hand_depth[t]):
-            depth[t], source[t] = size * z_unit[t], "size"
-        else:
-            depth[t], source[t] = hand_depth[t], "hand"
-    ok = np.isfinite(depth)
-    depth = np.interp(np.arange(T), np.flatnonzero(ok), depth[ok])
-    # The placed centre's direction, interpolated over frames without a mask.
-    t_obj_cam = np.zeros((T, 3))
-    dirs = np.full((T, 3), np.nan)
-    for t in range(T):
-        if has[t]:
-            dirs[t] = trans_unit[t, path[t]] / trans_unit[t, path[t], 2]
-    for k in range(2):
-        dirs[~has, k] = np.interp(np.flatnonzero(~has), np.flatnonzero(has), dirs[has, k]) if (~has).any() else dirs[~has, k]
-    dirs[:, 2] = 1.0
-    t_obj_cam = dirs * depth[:, None]
-
-    # 4. Refinement of each frame from its hypothesis on the full-resolution silhouette.
-    for t in range(T):
-        if not has[t]:
-            continue
-        scorer = _Scorer(masks[t], K, pts, margin=int(2 * eq_r_px[t]) + 4)
-        R_best, t_best = R_obj_cam[t], t_obj_cam[t].copy()
-        s_best, _ = scorer(R_best, t_best)
-        step_t, step_r = 0.03 * depth[t], 0.12
-        for _ in range(refine_steps):
-            improved = False
-            for axis in range(3):
-                for sign in (-1.0, 1.0):
-                    tc = t_best.copy()
-                    tc[axis] += sign * step_t * (0.3 if axis < 2 else 1.0)
-                    s, _ = scorer(R_best, tc)
-                    if s < s_best - 1e-6:
-                        s_best, t_best, improved = s, tc, True
-                    Rc = _axis_rotation(axis, sign * step_r) @ R_best
-                    s, _ = scorer(Rc, t_best)
-                    if s < s_best - 1e-6:
-                        s_best, R_best, improved = s, Rc, True
-            if not improved:
-                step_t *= 0.5
-                step_r *= 0.5
-                if step_r < 0.01:
-                    break
-        if source[t] == "hand":  # a partly hidden view: its outline says little about depth
-            t_best = t_best / t_best[2] * depth[t]
-        R_obj_cam[t], t_obj_cam[t] = R_best, t_best
 
     # Camera -> world.
     R_world = np.einsum("tji,tjk->tik", R_wc, R_obj_cam)
@@ -447,7 +565,8 @@ def fit_object(
             Rc = R_wc[t] @ Rs[t]
             tc = R_wc[t] @ t_world[t] + t_wc[t]
             iou[t] = scorer(Rc, tc)[1]
-    log.info("object proxy: %s, half-extents %s m (silhouette IoU %.2f on %d frames)", kind, np.round(half, 3), proxy_iou, len(sample))
+    log.info("object proxy: %s, half-extents %s m (silhouette IoU %.2f on %d frames); features measured %d of %d turns",
+             kind, np.round(half, 3), proxy_iou, len(sample), n_measured, max(len(idx) - 1, 0))
     track = ObjectTrack(centre=np.zeros(3), quats=q, translations=t_world)
     return ObjectFit(track=track, radii_m=half, iou=iou, depth_source=source, kind=kind)
 
