@@ -46,9 +46,9 @@ log = logging.getLogger(__name__)
 HAND_BONES = ["wrist.L", "wrist.R", "finger3-1.L", "finger3-1.R"]
 PROXY_KINDS = ("cuboid", "ellipsoid")
 PROXY_RATIOS = (1.0, 0.7, 0.45, 0.25)
-"""Candidate ratios of the proxy's middle and smallest half-extent to its largest. Chosen
-on the synthetic video benchmark (default clip and a 60-frame 512x384 one): coarser grids
-mis-shaped the box; a box's rotation comes out within the grid's step of its ratios."""
+"""Candidate ratios of the proxy's middle and smallest half-extent to its largest: from a
+cube to a slab a quarter as thick. Set on the synthetic video benchmark (default clip and a
+60-frame 512x384 one) without a sweep; finer grids were not tried."""
 
 
 @dataclass
@@ -321,7 +321,9 @@ def relative_rotation(feats: _Features, a: int, b: int, kind: str, half: np.ndar
                       min_inliers: int = 8) -> np.ndarray | None:
     """The object's rotation from frame a to frame b in camera coordinates (R_b = D R_a), from
     its features: those of frame a lifted onto the proxy posed at (R_a, t_a), then posed in
-    frame b (PnP, RANSAC). None with fewer than ``min_inliers`` consistent matches."""
+    frame b (PnP, RANSAC). None with fewer than ``min_inliers`` consistent matches (or under
+    40 % of the lifted ones): 8 was chosen on the synthetic video benchmark's two clips, where
+    6 let through turns some 30 degrees off."""
     import cv2
 
     ua, ub = feats.matches(a, b)
@@ -469,10 +471,13 @@ def fit_object(
 
     ``n_hypotheses`` world rotations are scored per frame (about 15 degrees apart);
     ``smooth_per_rad`` is the cost of turning one radian between consecutive frames, in
-    units of silhouette IoU; ``proxy_frames`` clear frames choose the proxy. The three were
-    chosen on the synthetic video benchmark (the default 40-frame clip and a 60-frame
-    512x384 one): fewer hypotheses or a weaker smoothness let mirror-image and
-    symmetric-view solutions through, a stronger one lags behind a turning object.
+    units of silhouette IoU, and ``feature_per_rad`` the cost of departing by one radian
+    from a turn the object's features measured; ``proxy_frames`` clear frames choose the
+    proxy. ``images`` [T, H, W, 3] uint8 enables the feature-measured turns. The two costs
+    were chosen on the synthetic video benchmark (the default 40-frame clip and a 60-frame
+    512x384 one; docs/experiments/2026-11-25-initial-object-pose.md): a weaker smoothness
+    let mirror-image solutions through, a stronger one or a stronger feature term did no
+    better on both. ``n_hypotheses`` and ``proxy_frames`` were set there without a sweep.
     """
     T, H, W = masks.shape
     f = float(K[0, 0])
