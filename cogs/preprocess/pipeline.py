@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 1
 TRACKER_VERSION = 3  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
+OBJECT_POSE_VERSION = 2  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
 
@@ -350,8 +351,8 @@ class _Runner:
                 # masks step's), fingers included (they hide the object, they do not shrink
                 # it). Fitted to the masks without them it comes out smaller, so nearer:
                 # centre error 16 -> 17.5 % of the depth on the 30-frame benchmark clip.
-                op, _ = self._step(ui, 7, "object_pose", {}, ["objects", "masks", "body"],
-                                   lambda lb: self._object_pose(lb, ui, ob, human_masks, bo, K))
+                op, _ = self._step(ui, 7, "object_pose", {"version": OBJECT_POSE_VERSION}, ["frames", "objects", "masks", "body"],
+                                   lambda lb: self._object_pose(lb, ui, images, ob, human_masks, bo, K))
             else:
                 self.cache.keys["object_pose"] = "none"
                 ui.done(f"[7/{self.n_steps}] object_pose", "no object")
@@ -366,7 +367,8 @@ class _Runner:
             from cogs.preprocess.preview import contact_sheet
 
             contact_sheet(self.out, self.out / "preview.png", kp2d=pe["kp2d"], registered=bo["registered"].astype(bool), camera_method=cmeta["method"],
-                          radii=None if op is None else op["radii"], n_frames=cfg.preview_frames, body_model=cfg.body_model)
+                          radii=None if op is None else op["radii"], proxy=None if op is None else str(op["kind"]),
+                          n_frames=cfg.preview_frames, body_model=cfg.body_model)
             update(2, str(self.report.preview))
             self.report.seconds["scene"] = time.perf_counter() - t0
 
@@ -570,7 +572,7 @@ class _Runner:
                    f"in {stats['frames_with_fingers']}, bleed -{stats['bleed_px']} px")
         return arrays, {"summary": summary, "stats": stats}
 
-    def _object_pose(self, label, ui, ob, human_masks, bo, K):
+    def _object_pose(self, label, ui, images, ob, human_masks, bo, K):
         from cogs.preprocess.objectfit import fit_object
 
         masks = ob["masks"].astype(bool)
@@ -578,10 +580,11 @@ class _Runner:
         update = ui.task(label, T)
         fit = fit_object(masks, ob["confidence"], K, bo["world_to_camera"], bo["hand_joints"].astype(np.float64),
                          bo["root"].astype(np.float64), human_masks=human_masks, ground=(np.array([0.0, 0.0, 1.0]), 0.0),
-                         on_frame=lambda k: update(k))
-        stats = {"radii_m": fit.radii_m.tolist(), "mean_iou": float(np.nanmean(fit.iou)), "depth_source": fit.depth_source}
+                         images=images, on_frame=lambda k: update(k))
+        stats = {"proxy": fit.kind, "radii_m": fit.radii_m.tolist(), "mean_iou": float(np.nanmean(fit.iou)), "depth_source": fit.depth_source}
         return {"quats": fit.track.quats, "translations": fit.track.translations, "centre": fit.track.centre,
-                "radii": fit.radii_m, "iou": fit.iou}, {"summary": f"silhouette IoU {stats['mean_iou']:.2f}", "stats": stats}
+                "radii": fit.radii_m, "kind": np.array(fit.kind), "iou": fit.iou}, {
+                    "summary": f"{fit.kind} proxy, silhouette IoU {stats['mean_iou']:.2f}", "stats": stats}
 
     def _planes(self, label, ui, bo):
         from cogs.geometry.planes import ransac_planes
@@ -627,7 +630,7 @@ class _Runner:
             "body_fit": bmeta.get("stats", {}),
         }
         if op is not None:
-            source["object_init"] = {"shape": "ellipsoid", "radii_m": [float(r) for r in op["radii"]]}
+            source["object_init"] = {"shape": str(op["kind"]), "radii_m": [float(r) for r in op["radii"]]}
         scene = Scene(
             root=None,
             name=self.cfg.name or Path(self.cfg.input).stem,

@@ -2,7 +2,7 @@
 
 Per tile: the person mask (blue tint), MediaPipe's keypoints and skeleton (red/white), the
 fitted body's projected outline and skeleton (yellow), the object mask (green tint) and
-its fitted pose (magenta ellipsoid outline, red/green/blue axes), and the sparse scene
+its fitted pose (magenta outline of the cuboid or ellipsoid proxy, red/green/blue axes), and the sparse scene
 points that project into the frame (cyan). The caption names the frame and whether its
 camera was registered by SfM or interpolated.
 """
@@ -63,6 +63,7 @@ def draw_frame(
     radii: np.ndarray | None,
     points_sel: np.ndarray | None,
     skeleton: list[tuple[int, int]] | None = None,
+    proxy: str | None = None,
 ) -> np.ndarray:
     """One annotated frame [H, W, 3] uint8 at the scene's resolution."""
     import cv2
@@ -102,11 +103,11 @@ def draw_frame(
             if v > 0.3:
                 cv2.circle(img, (int(x), int(y)), lw + 1, RED, -1)
     if scene.has_object and radii is not None:
-        from cogs.preprocess.objectfit import ellipsoid_points
+        from cogs.preprocess.objectfit import proxy_points
 
         R = scene.object.rotation_matrices()[t]
         c = scene.object.translations[t]
-        pts = ellipsoid_points(np.asarray(radii), 400) @ R.T + c
+        pts = proxy_points(proxy or "ellipsoid", np.asarray(radii), 400) @ R.T + c
         uv, z = _project(pts, w2c, K)
         if (z > 0).all():
             hull = cv2.convexHull(uv.astype(np.float32)).astype(np.int32)
@@ -135,6 +136,7 @@ def contact_sheet(
     registered: np.ndarray | None = None,
     camera_method: str = "",
     radii: np.ndarray | None = None,
+    proxy: str | None = None,
     n_frames: int = 12,
     tile_width: int | None = None,
     body_model: str | None = None,
@@ -181,7 +183,7 @@ def contact_sheet(
         img = draw_frame(
             scene, t, kp2d,
             None if verts is None else verts[i], faces,
-            None if joints is None else joints[i], None, radii, pts, skeleton,
+            None if joints is None else joints[i], None, radii, pts, skeleton, proxy,
         )
         tile = cv2.resize(img, (tw, th), interpolation=cv2.INTER_AREA)
         r, c = divmod(i, cols)
