@@ -61,7 +61,7 @@ class Preprocess:
                                    tyro.conf.arg(constructor=tuple[tuple[float, ...], ...], metavar="FRAME X0 Y0 X1 Y1"),
                                    tyro.conf.UseAppendAction] = ()
     """A region that is not the object on frame FRAME (e.g. the shorts a track drifted to),
-    in pixels of the input video; repeatable. The tracker never takes its pixels on that
+    in pixels of the input video. The tracker never takes its pixels on that
     frame, and its colours count against the object in the whole clip."""
 
     object_masks: Path | None = None
