@@ -5,7 +5,7 @@
 Every step stores its result under ``SCENE/.cache/<step>.npz`` with a ``<step>.json`` beside
 it holding a key: a hash of the step's options and of the keys of the steps it reads. A
 re-run loads every step whose key still matches and recomputes from the first that does
-not (an interrupted run resumes where it stopped; changing ``--object-box`` redoes the
+not (an interrupted run resumes where it stopped; changing any ``--object-box`` redoes the
 object masks and what depends on them, not the frames or the person). ``--force`` ignores
 the cache.
 
