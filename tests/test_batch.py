@@ -63,6 +63,25 @@ def test_defaults_apply_to_every_entry_and_the_entrys_own_options_win(tmp_path):
     assert a.eval == {"pose_fit_steps": 0, "renders": True} and b.eval == {"pose_fit_steps": 0, "renders": False}
 
 
+def test_a_video_entry_takes_one_object_box_or_one_per_frame_and_negative_boxes(tmp_path):
+    from cogs.preprocess.command import Preprocess
+
+    (tmp_path / "clip.mp4").write_bytes(b"not read here")
+    doc = {"sequences": [
+        {"name": "one", "video": "clip.mp4", "preprocess": {"object_box": [410, 300, 520, 420], "object_box_frame": 5}},
+        {"name": "several", "video": "clip.mp4", "preprocess": {"object_box": [[0, 410, 300, 520, 420], [30, 400, 310, 500, 430]],
+                                                                 "object_negative_box": [[12, 0, 0, 50, 50]]}},
+        {"name": "bad", "video": "clip.mp4", "preprocess": {"object_box": "around the ball"}},
+    ]}
+    problems: list[str] = []
+    one, several = parse_manifest(doc, tmp_path, problems)
+    assert problems == ["sequences[2] (bad): preprocess.object_box: 'around the ball' is not a list of numbers or "
+                        "a list of lists of numbers or null"]
+    prompts = [Preprocess(input=e.source, out=tmp_path / e.name, **e.options).object_prompts() for e in (one, several)]
+    assert [(p.frame, p.box) for p in prompts[0][0]] == [(5, (410.0, 300.0, 520.0, 420.0))]
+    assert [p.frame for p in prompts[1][0]] == [0, 30] and [(n.frame, n.box) for n in prompts[1][1]] == [(12, (0.0, 0.0, 50.0, 50.0))]
+
+
 def test_the_mean_row_averages_the_finished_entries_and_missing_numbers_show_as_dashes():
     def row(name, status, psnr, lpips=None, error=None):
         r = {c: None for c in COLUMNS}

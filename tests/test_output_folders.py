@@ -120,6 +120,8 @@ def test_a_users_folder_where_the_work_folder_goes_is_refused_and_kept(clip, tmp
     ("--person-threshold", dict(person_threshold=1.5)),
     ("--object-box", dict(object_box=(50.0, 50.0, 10.0, 10.0))),
     ("--object-box-frame", dict(object_box=(0.0, 0.0, 10.0, 10.0), object_box_frame=-1)),
+    ("--object-box", dict(object_box=((1.0, 5.0, 5.0, 20.0, 20.0), (1.0, 6.0, 6.0, 30.0, 30.0)))),
+    ("--object-negative-box", dict(object_box=((1.0, 5.0, 5.0, 20.0, 20.0),), object_negative_box=((1.0, 0.0, 0.0, 30.0, 30.0),))),
     ("--object-masks", dict(object_masks=Path("/nonexistent/masks"))),
     ("--body-model", dict(body_model="mystery")),
     ("--body-iterations", dict(body_iterations=0)),

@@ -327,6 +327,8 @@ def _type_text(hint: Any) -> str:
     if origin is Literal:
         return "one of " + ", ".join(repr(a) for a in args)
     if origin is tuple:
+        if Ellipsis in args and typing.get_origin(args[0]) is tuple:
+            return "a list of lists of numbers"
         return f"a list of {len(args)} numbers" if Ellipsis not in args else "a list of numbers"
     if hint is type(None):
         return "null"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import tyro
 
@@ -45,11 +45,24 @@ class Preprocess:
     focal_px: float | None = None
     """Focal length in pixels of the processed frames; overrides --focal-factor."""
 
-    object_box: tuple[float, float, float, float] | None = None
-    """Object prompt: a box x0 y0 x1 y1 around the object, in pixels of the input video."""
+    object_box: Annotated[tuple[float, ...] | tuple[tuple[float, ...], ...] | None,
+                          tyro.conf.arg(constructor=tuple[tuple[float, ...], ...], metavar="[FRAME] X0 Y0 X1 Y1"),
+                          tyro.conf.UseAppendAction] = ()
+    """Object prompt: a box X0 Y0 X1 Y1 around the object, in pixels of the input video, on
+    frame --object-box-frame. Repeat it as --object-box FRAME X0 Y0 X1 Y1, one per frame,
+    to prompt several frames (e.g. where the tracker lost the object): the tracker restarts
+    from each box."""
 
-    object_box_frame: int = 0
-    """Index (among the kept frames) of the frame the box is drawn on."""
+    object_box_frame: int | None = None
+    """Index (among the kept frames) of the frame the single box X0 Y0 X1 Y1 is drawn on
+    (default 0). Boxes given as FRAME X0 Y0 X1 Y1 name their own frames."""
+
+    object_negative_box: Annotated[tuple[float, ...] | tuple[tuple[float, ...], ...] | None,
+                                   tyro.conf.arg(constructor=tuple[tuple[float, ...], ...], metavar="FRAME X0 Y0 X1 Y1"),
+                                   tyro.conf.UseAppendAction] = ()
+    """A region that is not the object on frame FRAME (e.g. the shorts a track drifted to),
+    in pixels of the input video. The tracker never takes its pixels on that
+    frame, and its colours count against the object in the whole clip."""
 
     object_masks: Path | None = None
     """Folder of ready-made object masks (one image per frame, sorted by name; white =
@@ -118,6 +131,13 @@ class Preprocess:
     progress: bool = True
     """Show progress bars."""
 
+    def object_prompts(self):
+        """(positive box prompts sorted by frame, negative ones): `cogs.preprocess.prompts`;
+        UserError naming the option when one is malformed."""
+        from cogs.preprocess.prompts import parse_prompts
+
+        return parse_prompts(self.object_box, self.object_box_frame, self.object_negative_box)
+
     def check_options(self) -> None:
         """UserError naming the option, before any work or any file is written."""
         import math
@@ -139,7 +159,7 @@ class Preprocess:
         if self.max_side < 64:
             raise UserError(f"--max-side {self.max_side} is too small: frames need at least 64 pixels on their longer "
                             "side for the person to be found")
-        for option, v in {"--start": self.start, "--object-box-frame": self.object_box_frame,
+        for option, v in {"--start": self.start,
                           "--mask-dilate-px": self.mask_dilate_px, "--max-planes": self.max_planes}.items():
             if v < 0:
                 raise UserError(f"{option} must be >= 0, got {v}")
@@ -152,12 +172,17 @@ class Preprocess:
                 raise UserError(f"{option} must be between {lo:g} and {hi:g}, got {v:g}")
         if not math.isfinite(self.min_parallax) or self.min_parallax < 0:
             raise UserError(f"--min-parallax must be >= 0, got {self.min_parallax:g}")
-        if self.object_box is not None and self.object_masks is not None:
-            raise UserError("give either --object-box or --object-masks, not both")
-        if self.object_box is not None:
-            x0, y0, x1, y1 = self.object_box
-            if not all(math.isfinite(v) for v in self.object_box) or not (x1 > x0 and y1 > y0):
-                raise UserError(f"--object-box {x0:g} {y0:g} {x1:g} {y1:g} must be x0 y0 x1 y1 with x1 > x0 and y1 > y0")
+        positives, negatives = self.object_prompts()
+        if self.object_masks is not None and (positives or negatives):
+            option = "--object-box" if positives else "--object-negative-box"
+            raise UserError(f"give either {option} or --object-masks, not both (ready-made masks are not tracked)")
+        if positives:  # the frames and boxes against the clip, where its header tells (again after decoding)
+            from cogs.preprocess.frames import probe
+            from cogs.preprocess.prompts import check_against_frames
+
+            n, size = probe(src, self.stride, self.limit, self.start)
+            if n and size:
+                check_against_frames(positives + negatives, size, n)
         if self.object_masks is not None and not Path(self.object_masks).is_dir():
             raise UserError(f"--object-masks {self.object_masks} is not a folder")
         if self.sam2_checkpoint is not None and not Path(self.sam2_checkpoint).is_file():

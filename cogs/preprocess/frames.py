@@ -77,6 +77,39 @@ def read_frames(
     return _read_video(source, stride, limit, max_side, start, on_frame)
 
 
+def probe(source: str | Path, stride: int = 1, limit: int | None = None, start: int = 0) -> tuple[int | None, tuple[int, int] | None]:
+    """(how many frames ``read_frames`` would keep, (width, height) of the source) from the
+    folder listing and the first image's header, or the video's stream header; None for
+    what cannot be told without decoding (a stream that does not state its frame count,
+    an unreadable file: ``read_frames`` reports those). Used to check the object prompts
+    before any work."""
+    source = Path(source)
+    n_source, size = None, None
+    try:
+        if source.is_dir():
+            from PIL import Image
+
+            files = sorted(p for p in source.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+            n_source = len(files)
+            if files:
+                with Image.open(files[0]) as im:
+                    size = (int(im.width), int(im.height))
+        elif source.is_file():
+            import av
+
+            with av.open(str(source)) as c:
+                if c.streams.video:
+                    st = c.streams.video[0]
+                    n_source = int(st.frames) or None
+                    size = (int(st.width), int(st.height)) if st.width and st.height else None
+    except Exception:  # whatever is wrong with the input, read_frames says it better
+        return None, None
+    if n_source is None:
+        return None, size
+    n = max(0, (n_source - start + stride - 1) // stride)
+    return (min(n, limit) if limit else n), size
+
+
 def _keep(i: int, start: int, stride: int) -> bool:
     return i >= start and (i - start) % stride == 0
 

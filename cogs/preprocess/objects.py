@@ -1,12 +1,13 @@
-"""Step 3: the handled object's mask in every frame, propagated from one box prompt.
+"""Step 3: the handled object's mask in every frame, propagated from box prompts.
 
 Two engines:
 
 - **SAM2** (optional, when the ``sam2`` package is installed and a checkpoint is given): its
-  video predictor propagates the box prompt forwards and backwards.
+  video predictor propagates the box prompts forwards and backwards; negative boxes go in
+  as negative clicks (``sam2_prompts``).
 - **classical** (default, no weights): GrabCut inside the prompt box gives the object's
-  first mask (``segment.grabcut_box``); ``tracking.propagate_masks`` carries it through
-  the video with motion (SIFT matches, DIS optical flow, the carrying hand, each fitted
+  first mask (``segment.grabcut_box``) on each prompted frame; ``tracking.propagate_masks``
+  restarts from each and carries them through the video with motion (SIFT matches, DIS optical flow, the carrying hand, each fitted
   to a local colour model), a whole-frame colour search, and a search next to the hand
   that carried the object when it is lost, all told by a model of the static scene what
   cannot be the object and what moved. See ``tracking.py`` and ``background.py``.
@@ -85,8 +86,36 @@ def read_mask_folder(folder: str | Path, n_frames: int, size: tuple[int, int], s
     return out
 
 
-def propagate_masks_sam2(images: np.ndarray, box: np.ndarray, prompt_frame: int, checkpoint: Path, config: str, work_dir: Path, on_frame=None) -> np.ndarray:
-    """SAM2 video propagation from a box prompt (optional engine) -> [T, H, W] bool."""
+def sam2_prompts(positives: list[tuple[int, np.ndarray]], negatives: list[tuple[int, np.ndarray]] = ()) -> list[dict]:
+    """The keyword arguments of one ``add_new_points_or_box`` call per prompted frame.
+
+    A positive box goes in as SAM2's box prompt. SAM2 takes no negative box, only negative
+    clicks (label 0): a negative box becomes five of them, its centre and the centres of
+    its quarters. A frame with only negative boxes gets clicks alone; the pipeline also
+    clears those boxes from SAM2's masks afterwards.
+    """
+    frames: dict[int, dict] = {}
+    for k, box in positives:
+        frames.setdefault(int(k), {})["box"] = np.asarray(box, np.float32)
+    for k, box in negatives:
+        x0, y0, x1, y1 = (float(v) for v in box)
+        cx, cy, qx, qy = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.25 * (x1 - x0), 0.25 * (y1 - y0)
+        pts = np.array([[cx, cy], [cx - qx, cy - qy], [cx + qx, cy - qy], [cx - qx, cy + qy], [cx + qx, cy + qy]], np.float32)
+        f = frames.setdefault(int(k), {})
+        f["points"] = np.concatenate([f["points"], pts]) if "points" in f else pts
+        f["labels"] = np.zeros(len(f["points"]), np.int32)
+    return [{"frame_idx": k, "obj_id": 1, **frames[k]} for k in sorted(frames)]
+
+
+def propagate_masks_sam2(images: np.ndarray, prompts: list[tuple[int, np.ndarray]], checkpoint: Path, config: str, work_dir: Path,
+                         negatives: list[tuple[int, np.ndarray]] = (), on_frame=None) -> np.ndarray:
+    """SAM2 video propagation from box prompts (optional engine) -> [T, H, W] bool.
+
+    ``prompts``: (frame, box x0 y0 x1 y1 in processed pixels), one or more; ``negatives``
+    likewise, regions that are not the object (``sam2_prompts``). SAM2 keeps every
+    prompted frame in its memory, so one pass forwards from the first prompt and one
+    backwards from it cover the clip, each frame seeing every prompt.
+    """
     if not Path(checkpoint).exists():
         raise UserError(f"--sam2-checkpoint {checkpoint} does not exist")
     try:
@@ -103,12 +132,14 @@ def propagate_masks_sam2(images: np.ndarray, box: np.ndarray, prompt_frame: int,
     predictor = build_sam2_video_predictor(config, str(checkpoint), device="cpu")
     T, H, W, _ = images.shape
     out = np.zeros((T, H, W), bool)
+    first = min(int(k) for k, _ in prompts)
     done = 0
     with torch.inference_mode():
         state = predictor.init_state(video_path=str(frames_dir))
-        predictor.add_new_points_or_box(state, frame_idx=prompt_frame, obj_id=1, box=box.astype(np.float32))
+        for call in sam2_prompts(prompts, negatives):
+            predictor.add_new_points_or_box(state, **call)
         for reverse in (False, True):
-            for t, _, logits in predictor.propagate_in_video(state, start_frame_idx=prompt_frame, reverse=reverse):
+            for t, _, logits in predictor.propagate_in_video(state, start_frame_idx=first, reverse=reverse):
                 out[t] = (logits[0, 0] > 0).cpu().numpy()
                 done += 1
                 if on_frame:

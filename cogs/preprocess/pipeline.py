@@ -5,7 +5,7 @@
 Every step stores its result under ``SCENE/.cache/<step>.npz`` with a ``<step>.json`` beside
 it holding a key: a hash of the step's options and of the keys of the steps it reads. A
 re-run loads every step whose key still matches and recomputes from the first that does
-not (an interrupted run resumes where it stopped; changing ``--object-box`` redoes the
+not (an interrupted run resumes where it stopped; changing any ``--object-box`` redoes the
 object masks and what depends on them, not the frames or the person). ``--force`` ignores
 the cache.
 
@@ -307,17 +307,18 @@ class _Runner:
             self.source_size = tuple(fmeta["source_size"])
             self.fps = float(fmeta["fps"])
             self.source_indices = fr["source_indices"]
-            if cfg.object_box is not None:  # the box against the frames, before the steps that take long
-                from cogs.preprocess.objects import check_box
+            self.positives, self.negatives = cfg.object_prompts()
+            if self.positives:  # the boxes against the frames, before the steps that take long
+                from cogs.preprocess.prompts import check_against_frames
 
-                check_box(cfg.object_box, self.source_size, cfg.object_box_frame, T)
+                check_against_frames(self.positives + self.negatives, self.source_size, T)
 
             pe, _ = self._step(ui, 2, "persons", {"threshold": cfg.person_threshold, "refine": cfg.refine_person_masks, "sam2": str(cfg.sam2_checkpoint)}, ["frames"], lambda lb: self._persons(lb, ui, images))
             if not pe["detected"].any():
                 raise UserError(f"no person detected in any of the {T} frames of {src}")
 
-            has_object = cfg.object_box is not None or cfg.object_masks is not None
-            ob_params = {"box": cfg.object_box, "frame": cfg.object_box_frame, "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint),
+            has_object = bool(self.positives) or cfg.object_masks is not None
+            ob_params = {**self._prompt_params(), "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint),
                          "tracker": TRACKER_VERSION}
             if has_object:
                 ob, _ = self._step(ui, 3, "objects", ob_params, ["frames", "persons"], lambda lb: self._objects(lb, ui, images, pe))
@@ -371,6 +372,15 @@ class _Runner:
                           n_frames=cfg.preview_frames, body_model=cfg.body_model)
             update(2, str(self.report.preview))
             self.report.seconds["scene"] = time.perf_counter() - t0
+
+    def _prompt_params(self) -> dict:
+        """The object prompts as the objects step's key holds them: one box on one frame as
+        before several prompts existed (so such a scene's cache stays valid), otherwise
+        every box as [frame, x0, y0, x1, y1]."""
+        pos, neg = self.positives, self.negatives
+        if len(pos) <= 1 and not neg:
+            return {"box": list(pos[0].box) if pos else None, "frame": pos[0].frame if pos else 0}
+        return {"boxes": [p.record() for p in pos], "negative_boxes": [n.record() for n in neg]}
 
     # -- steps ----------------------------------------------------------------------
 
@@ -427,20 +437,35 @@ class _Runner:
         T, H, W, _ = images.shape
         update = ui.task(label, T)
         cues: list[str] = []
+        sources: list[int] = []
         if cfg.object_masks is not None:
             masks = O.read_mask_folder(cfg.object_masks, T, (W, H), self.source_indices)
             conf = masks.reshape(T, -1).any(1).astype(np.float64)
             update(T)
         else:
-            k = cfg.object_box_frame
-            O.check_box(cfg.object_box, self.source_size, k, T)
-            box = O.scale_box(cfg.object_box, self.source_size, (W, H))
+            from cogs.preprocess.prompts import box_mask
+
+            scaled = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.positives]
+            scaled_neg = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.negatives]
+            negative = {}
+            for k, box in scaled_neg:
+                negative[k] = negative.get(k, np.zeros((H, W), bool)) | box_mask(box, (H, W))
             if cfg.sam2_checkpoint is not None:
-                masks = O.propagate_masks_sam2(images, box, k, cfg.sam2_checkpoint, cfg.sam2_config, self.out / ".cache" / "sam2", on_frame=lambda n: update(n))
+                masks = O.propagate_masks_sam2(images, scaled, cfg.sam2_checkpoint, cfg.sam2_config, self.out / ".cache" / "sam2",
+                                               negatives=scaled_neg, on_frame=lambda n: update(n))
+                for k, region in negative.items():
+                    masks[k] &= ~region
                 conf = masks.reshape(T, -1).any(1).astype(np.float64)
             else:
-                prompt = O.grabcut_box(images[k], box)
-                masks, conf = O.propagate_masks(images, prompt, k, human_probs=pe["probs"], kp2d=pe["kp2d"], cues=cues, on_frame=lambda n: update(n))
+                prompts = {}
+                for p, (k, box) in zip(self.positives, scaled):
+                    prompts[k] = O.grabcut_box(images[k], box)
+                    if k in negative:
+                        prompts[k] &= ~negative[k]
+                    if not prompts[k].any():
+                        raise UserError(f"{p.option} {p.text}: GrabCut found no object in the box on frame {k}")
+                masks, conf = O.propagate_masks(images, list(prompts.values()), list(prompts), human_probs=pe["probs"], kp2d=pe["kp2d"],
+                                                negatives=negative, cues=cues, sources=sources, on_frame=lambda n: update(n))
         if not masks.any():
             raise UserError("the object masks are empty in every frame (check --object-box / --object-masks)")
         n = int(masks.reshape(T, -1).any(1).sum())
@@ -448,6 +473,8 @@ class _Runner:
         stats = {"frames_with_object": n, "empty_frames": lost}
         if cues:  # which cue of the classical tracker found each frame
             stats["cues"] = {c: cues.count(c) for c in sorted(set(cues)) if c}
+        if len(self.positives) > 1:  # which prompt's pass each frame's mask came from
+            stats["prompt_of_frame"] = sources
         return {"masks": masks, "confidence": conf}, {"summary": f"object in {n}/{T} frames", "stats": stats}
 
     def _cameras(self, label, ui, images, person_masks, obj_masks, K):
@@ -629,6 +656,11 @@ class _Runner:
             "split_protocol": "hosnerf-16" if T >= 32 else "every 4th from frame 2",
             "body_fit": bmeta.get("stats", {}),
         }
+        if self.positives:  # in pixels of the input video, frames among the kept ones
+            source["object_prompts"] = {"boxes": [p.record() for p in self.positives],
+                                        "negative_boxes": [n.record() for n in self.negatives]}
+        elif self.cfg.object_masks is not None:
+            source["object_masks"] = str(Path(self.cfg.object_masks))
         if op is not None:
             source["object_init"] = {"shape": str(op["kind"]), "radii_m": [float(r) for r in op["radii"]]}
         scene = Scene(

@@ -147,7 +147,7 @@ class _View:
 
 class FeatureBank:
     """Re-detection by local features: SIFT keypoints of the object in remembered views
-    (the prompt's, pinned, and the last ``recent`` frames found), matched into a new
+    (the prompts', pinned, and the last ``recent`` frames found), matched into a new
     frame and verified by a RANSAC similarity transform.
 
     Unlike flow it follows a large jump (a fast lift) and finds the object again after an
@@ -164,7 +164,7 @@ class FeatureBank:
         self.sift = cv2.SIFT_create(contrastThreshold=0.02)
         self.matcher = cv2.BFMatcher(cv2.NORM_L2)
         self.frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self.pinned: _View | None = None
+        self.pinned: list[_View] = []  # the prompts' views, never forgotten
         self.recent: list[_View] = []
         self.n_recent = recent
         self.min_inliers = min_inliers
@@ -190,7 +190,7 @@ class FeatureBank:
         return _View(t, xy[inside], desc[inside], mask)
 
     def pin(self, t: int, mask: np.ndarray) -> None:
-        self.pinned = self.view(t, mask)
+        self.pinned.append(self.view(t, mask))
 
     def add(self, t: int, mask: np.ndarray) -> None:
         self.recent = [v for v in self.recent if v.t != t][-(self.n_recent - 1) :] + [self.view(t, mask)]
@@ -207,8 +207,7 @@ class FeatureBank:
         xy, desc = self._frame(t)
         best = None
         views = self.recent[::-1]
-        if self.pinned is not None and all(v.t != self.pinned.t for v in views):
-            views.append(self.pinned)
+        views += [p for p in self.pinned if all(v.t != p.t for v in views)]
         for v in views:
             pairs = self._pairs(v.desc, desc)
             if len(pairs) < self.min_inliers:
@@ -495,9 +494,15 @@ class _Tracker:
     """The state shared by every pass over the video: the frames, person and hand inputs,
     the prompt's colour model and the feature bank."""
 
-    def __init__(self, images, prompt_mask, prompt_frame, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames):
+    def __init__(self, images, prompt_mask, prompt_frame, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames,
+                 prompts: dict[int, np.ndarray] | None = None, negatives: dict[int, np.ndarray] | None = None):
+        """``prompt_mask`` on frame ``prompt_frame``, or ``prompts`` {frame: [H, W] bool}
+        (then those two are None); ``negatives`` {frame: [H, W] bool}: pixels that are
+        not the object on that frame."""
         import cv2
 
+        if prompts is None:
+            prompts = {prompt_frame: prompt_mask}
         self.images = images
         self.human_probs = human_probs
         self.kp2d = kp2d
@@ -506,27 +511,45 @@ class _Tracker:
         self.adapt = adapt
         self.min_align = min_align
         self.max_hand_frames = max_hand_frames
-        self.ref_area = float(prompt_mask.sum())
-        self.convex = solidity(prompt_mask) >= 0.9  # a box, a ball, a bottle; not a mug by its handle
-        _, self.s0 = mask_stats(prompt_mask)
-        ring = cv2.dilate(prompt_mask.astype(np.uint8), np.ones((5, 5), np.uint8), iterations=max(2, int(0.15 * self.s0.max() / 2))) > 0
+        self.negatives = dict(negatives or {})
+        rings = {k: cv2.dilate(m.astype(np.uint8), np.ones((5, 5), np.uint8), iterations=max(2, int(0.15 * mask_stats(m)[1].max() / 2))) > 0
+                 for k, m in prompts.items()}
         self.distractors = None
         if human_probs is not None:
             # The person's colours in every frame (a held object inside the person's mask
             # contaminates this a little; the object's own histogram is far more peaked).
             keep = human_probs > 127
-            keep[prompt_frame] &= ~ring
+            for k, ring in rings.items():
+                keep[k] &= ~ring
             flat = np.flatnonzero(keep)
             if len(flat):
                 pick = np.random.default_rng(0).choice(flat, size=min(len(flat), 400_000), replace=False)
                 self.distractors = images.reshape(-1, 3)[pick]
-        self.base_model = ColourModel.fit(images[prompt_frame], prompt_mask, ~ring, self.distractors)
-        self.ref_score = float(self.base_model.prob(images[prompt_frame])[prompt_mask].mean())
+        if self.negatives:
+            # What the user marked as not the object weighs as much as the person's colours
+            # in every colour model, on every frame: a track that drifted onto the shorts
+            # must not find the shorts object-like a frame later.
+            neg = np.concatenate([images[k][m] for k, m in self.negatives.items()])
+            if len(neg):
+                n = len(neg) if self.distractors is None else len(self.distractors)
+                neg = neg[np.arange(n) % len(neg)]
+                self.distractors = neg if self.distractors is None else np.concatenate([self.distractors, neg])
         self.bank = FeatureBank(images)
-        self.bank.pin(prompt_frame, prompt_mask)
+        self.appearance = {}
+        for k, m in prompts.items():
+            self.bank.pin(k, m)
+            base = ColourModel.fit(images[k], m, ~rings[k], self.distractors)
+            _, s0 = mask_stats(m)
+            # a box, a ball, a bottle are convex; not a mug by its handle
+            self.appearance[k] = (base, float(base.prob(images[k])[m].mean()), float(m.sum()), solidity(m) >= 0.9, s0)
+        self.use(next(iter(prompts)))
         self.scene = None if human_probs is None else StaticScene(images, human_probs, self.bank.static_matches)
         self.masks: np.ndarray | None = None  # [T, H, W] bool: the frames found so far (``run``'s masks)
         self._scene_maps: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}
+
+    def use(self, k: int) -> None:
+        """Track from prompt k: its colour model, colour evidence, area, size and shape."""
+        self.base_model, self.ref_score, self.ref_area, self.convex, self.s0 = self.appearance[k]
 
     # -- models -----------------------------------------------------------------------
 
@@ -586,11 +609,15 @@ class _Tracker:
 
     # -- passes -----------------------------------------------------------------------
 
-    def run(self, start: int, direction: int, masks: np.ndarray, conf: np.ndarray, cues: list, fill: bool = False, on_frame=None) -> None:
+    def run(self, start: int, direction: int, masks: np.ndarray, conf: np.ndarray, cues: list, fill: bool = False, on_frame=None,
+            stop: int | None = None) -> None:
         """Track from frame ``start`` (its mask known) towards ``direction`` (+1 or -1),
-        writing ``masks``, ``conf`` and ``cues`` in place. ``fill``: only into empty
-        frames, stopping at the first frame already found or where the object is lost."""
+        writing ``masks``, ``conf`` and ``cues`` in place, up to the clip's end or frame
+        ``stop`` (not included). ``fill``: only into empty frames, stopping at the first
+        frame already found or where the object is lost."""
         T = len(self.images)
+        if masks is not self.masks:
+            self._scene_maps = {}  # judged against another pass's frames
         self.masks = masks
         m0 = masks[start]
         c0, s0 = mask_stats(m0)
@@ -609,8 +636,13 @@ class _Tracker:
             return st_before, model_before
 
         t = start + direction
-        while 0 <= t < T and not (fill and masks[t].any()):
+        while 0 <= t < T and t != stop and not (fill and masks[t].any()):
             f = self._step(t, st, direction, model)
+            neg = self.negatives.get(t)
+            if neg is not None and (f.visible & neg).any():  # never the object on this frame, whatever a cue found
+                f.visible, f.extent = f.visible & ~neg, f.extent & ~neg
+                if not f.visible.any():
+                    f = _Found(f.visible, f.extent)
             if st.pending is not None and f.cue != "hand":
                 # A find by the hand cue alone is tentative: the next frame, found without
                 # the hand's help, must show the object carried by that hand, or both go.
@@ -735,6 +767,9 @@ class _Tracker:
             static, moving = maps
             # What moved and is not the person (nor a hand) is the object, whatever its colour.
             moving = moving & (hp <= 0.5) & ~hands
+        neg = self.negatives.get(t)
+        if neg is not None:  # the user's "not the object" here: like static scene, never object
+            static, moving = static | neg, moving & ~neg
         prob_search[static] = 0.0  # the static scene is never the object
         # A carried object stays with its hand (a look-alike across the room is not it):
         # the search keeps to the hand, if visible, and near the motion prediction.
@@ -861,8 +896,8 @@ class _Tracker:
 
 def propagate_masks(
     images: np.ndarray,
-    prompt_mask: np.ndarray,
-    prompt_frame: int,
+    prompt_mask: np.ndarray | list[np.ndarray],
+    prompt_frame: int | list[int],
     human_probs: np.ndarray | None = None,
     kp2d: np.ndarray | None = None,
     min_score: float = 0.5,
@@ -871,12 +906,18 @@ def propagate_masks(
     max_hand_frames: int = 4,
     cues: list | None = None,
     on_frame=None,
+    negatives: dict[int, np.ndarray] | None = None,
+    sources: list | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Propagate one frame's object mask through the video (see the module docstring).
+    """Propagate one frame's object mask, or several frames' masks, through the video (see
+    the module docstring; several prompts: ``combine_passes``).
 
-    images [T, H, W, 3] uint8; prompt_mask [H, W] bool at frame ``prompt_frame``;
-    human_probs [T, H, W] uint8 person probabilities (optional prior); kp2d [T, 33, 3]
-    MediaPipe keypoints (optional: the hands and the head).
+    images [T, H, W, 3] uint8; prompt_mask [H, W] bool at frame ``prompt_frame``, or a
+    list of masks and a list of their frames (one per frame); human_probs [T, H, W] uint8
+    person probabilities (optional prior); kp2d [T, 33, 3] MediaPipe keypoints (optional:
+    the hands and the head); ``negatives`` {frame: [H, W] bool}: pixels that are not the
+    object on that frame (never object there; their colours count against the object in
+    every colour model).
 
     ``min_score``: a colour-search window whose mean object probability is below this
     fraction of the prompt mask's counts as "object not visible" (0.7x that where the
@@ -886,18 +927,30 @@ def propagate_masks(
     of a motion fit. ``max_hand_frames``: how many frames after losing a carried object
     the hand cue looks for it. ``cues``: a list that receives the cue that found each
     frame ("prompt", "stay", "features", "flow", "carried", "colour", "hand" or "").
+    ``sources``: a list that receives the prompt frame each frame's result comes from.
 
     Returns (masks [T, H, W] bool, confidence [T] in [0, 1]; 0 where the object was lost).
     """
     T, H, W, _ = images.shape
-    if not prompt_mask.any():
-        raise UserError(f"the object prompt on frame {prompt_frame} gave an empty mask")
+    if isinstance(prompt_frame, (list, tuple)):
+        prompts = {int(k): np.asarray(m, bool) for k, m in zip(prompt_frame, prompt_mask)}
+        assert len(prompts) == len(prompt_frame) == len(prompt_mask), "one prompt per frame"
+    else:
+        prompts = {int(prompt_frame): prompt_mask}
+    frames = sorted(prompts)
+    for k in frames:
+        assert 0 <= k < T, f"prompt frame {k} outside 0..{T - 1}"
+        if not prompts[k].any():
+            raise UserError(f"the object prompt on frame {k} gave an empty mask")
     masks = np.zeros((T, H, W), bool)
     conf = np.zeros(T)
     found = [""] * T
-    masks[prompt_frame], conf[prompt_frame], found[prompt_frame] = prompt_mask, 1.0, "prompt"
-    tracker = _Tracker(images, prompt_mask, prompt_frame, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames)
-    done = [1]
+    origin = [frames[0]] * T
+    tracker = _Tracker(images, None, None, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames,
+                       prompts=prompts, negatives=negatives)
+    for k in frames:
+        masks[k], conf[k], found[k], origin[k] = prompts[k], 1.0, "prompt", k
+    done = [len(frames)]
 
     def tick():
         done[0] += 1
@@ -905,16 +958,83 @@ def propagate_masks(
             on_frame(min(done[0], T))
 
     if on_frame:
-        on_frame(1)
-    for direction in (+1, -1):
-        tracker.run(prompt_frame, direction, masks, conf, found, on_frame=tick)
-    # Back into each gap from where the object was found again (it reappeared with a face
-    # or at a place the pass through the gap could not connect to).
-    for direction in (+1, -1):
-        for t in range(prompt_frame + direction, T if direction > 0 else -1, direction):
-            if masks[t].any() and not masks[t - direction].any():
-                tracker.run(t, -direction, masks, conf, found, fill=True)
+        on_frame(len(frames))
+
+    def fill_gaps(m, c, cu, start: int, direction: int, end: int) -> None:
+        # Back into each gap from where the object was found again (it reappeared with a
+        # face or at a place the pass through the gap could not connect to).
+        for t in range(start + direction, end, direction):
+            if m[t].any() and not m[t - direction].any():
+                tracker.run(t, -direction, m, c, cu, fill=True)
+
+    # Between two prompts: a pass from each towards the other, each reaching the other's
+    # frame; the frames between take one or the other (``combine_passes``).
+    for a, b in zip(frames[:-1], frames[1:]):
+        passes = []
+        for k, direction, stop in ((a, +1, b + 1), (b, -1, a - 1)):
+            m, c, cu = np.zeros((T, H, W), bool), np.zeros(T), [""] * T
+            m[k], c[k], cu[k] = prompts[k], 1.0, "prompt"
+            tracker.use(k)
+            tracker.run(k, direction, m, c, cu, stop=stop, on_frame=tick)
+            fill_gaps(m, c, cu, k, direction, stop)
+            passes.append((m, c, cu))
+        (ma, ca, cua), (mb, cb, cub) = passes
+        switch = combine_passes(ma[a : b + 1], mb[a : b + 1]) + a
+        log.debug("prompts %d and %d: frames from %d on take the second's pass", a, b, switch)
+        for t in range(a + 1, b):
+            src = (ma, ca, cua, a) if t < switch else (mb, cb, cub, b)
+            masks[t], conf[t], found[t], origin[t] = src[0][t], src[1][t], src[2][t], src[3]
+        done[0] -= b - a + 1  # two passes cover these frames (and reach the prompts): the bar counts each once
+        if on_frame:
+            on_frame(min(done[0], T))
+    # Before the first prompt and after the last: that prompt's pass, as with one prompt.
+    for k, direction in ((frames[-1], +1), (frames[0], -1)):
+        tracker.use(k)
+        tracker.run(k, direction, masks, conf, found, on_frame=tick)
+    for k, direction in ((frames[-1], +1), (frames[0], -1)):
+        tracker.use(k)
+        fill_gaps(masks, conf, found, k, direction, T if direction > 0 else -1)
+    for t in list(range(frames[-1] + 1, T)) + list(range(frames[0])):
+        origin[t] = frames[-1] if t > frames[-1] else frames[0]
     log.debug("object cues per frame: %s", found)
     if cues is not None:
         cues[:] = found
+    if sources is not None:
+        sources[:] = origin
     return masks, conf
+
+
+def combine_passes(forward: np.ndarray, backward: np.ndarray, agree: float = 0.5) -> int:
+    """Where to switch from one prompt's pass to the next's, between two prompts.
+
+    ``forward`` [n, H, W] bool: the pass from the first prompt (frame 0 here) to the
+    second (frame n - 1); ``backward``: the pass from the second back to the first.
+    Returns s in [1, n - 1]: frames 1..s-1 take ``forward``, s..n-2 take ``backward``.
+
+    A track that leaves the object (drifts to the shorts, or loses it) rarely comes back,
+    so each pass is trusted from its prompt up to some frame and the switch belongs
+    between those. Each pass *reaches* the frames it found without a gap from its prompt
+    on; the switch is kept where both sides are within their reach. Inside that, it goes
+    to the frame where the two passes agree best (mask IoU at least ``agree``): both are
+    on the same object there and the switch shows no jump. Where they agree nowhere, it
+    is the frame nearest the middle: the nearest prompt's pass.
+
+    Not the more confident pass: the tracker's confidence says how well a fit matched its
+    own colour model, and a track that drifted onto clothing matches the clothing well.
+    """
+    n = len(forward)
+    assert n == len(backward) and n >= 2
+    if n == 2:
+        return 1
+    found_f = forward.reshape(n, -1).any(1)
+    found_b = backward.reshape(n, -1).any(1)
+    reach_f = n - 1 if found_f.all() else int(np.argmin(found_f)) - 1  # last frame of the unbroken run from frame 0
+    reach_b = 0 if found_b.all() else n - int(np.argmin(found_b[::-1]))  # first frame of the run back from n - 1
+    lo, hi = max(1, reach_b), min(n - 1, reach_f + 1)
+    lo, hi = min(lo, hi), max(lo, hi)
+    cand = np.arange(lo, hi + 1)
+    mid = 0.5 * (n - 1)
+    scores = np.array([iou(forward[t], backward[t]) for t in cand])
+    # The best agreement (ties to the middle); otherwise the frame nearest the middle.
+    key = [(-(sc if sc >= agree else 0.0), abs(t - mid), t) for t, sc in zip(cand, scores)]
+    return int(min(key)[2])

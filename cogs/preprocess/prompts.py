@@ -1,0 +1,163 @@
+"""The object prompts of `cogs preprocess`: boxes on the object, and boxes that are not it.
+
+On the command line (see `Preprocess.object_box`):
+
+    --object-box X0 Y0 X1 Y1 [--object-box-frame K]      one box, on frame K (default 0)
+    --object-box K X0 Y0 X1 Y1 --object-box M X0 Y0 X1 Y1 ...   a box on each of several frames
+    --object-negative-box K X0 Y0 X1 Y1 ...               not the object, on frame K
+
+Boxes are in pixels of the input video; frames are indices among the kept frames. The
+tracker restarts from every positive box (``tracking.propagate_masks``); a negative box's
+pixels are never object on its frame, and its colours count against the object in every
+colour model of the clip.
+
+Everything that can be checked without the frames is checked by ``parse_prompts`` (called
+by ``Preprocess.check_options`` before any work); the frame indices and the boxes against
+the frame size by ``check_against_frames``, as soon as the clip's size is known.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from numbers import Real
+
+import numpy as np
+
+from cogs.errors import UserError
+
+POSITIVE = "--object-box"
+NEGATIVE = "--object-negative-box"
+FRAME_OPTION = "--object-box-frame"
+
+
+@dataclass(frozen=True)
+class BoxPrompt:
+    """One box on one frame."""
+
+    frame: int  # index among the kept frames
+    box: tuple[float, float, float, float]  # x0, y0, x1, y1 in pixels of the input video
+    option: str  # the option that gave it (for messages)
+    text: str  # its value as the user wrote it (for messages)
+    own_frame: bool = True  # False: the single-box form, whose frame is --object-box-frame
+
+    def frame_text(self) -> str:
+        return f"{self.option} {self.text}: frame {self.frame}" if self.own_frame else f"{FRAME_OPTION} {self.frame}"
+
+    def record(self) -> list[float]:
+        """[frame, x0, y0, x1, y1], as scene.json and the cache key store it."""
+        return [self.frame, *self.box]
+
+
+def _fmt(values) -> str:
+    return " ".join(f"{float(v):g}" for v in values)
+
+
+def as_entries(value) -> list[tuple]:
+    """The option's value as a list of number tuples: None or () -> []; one flat list of
+    numbers (the Python API's and the batch manifest's single box) -> [it]; a list of
+    lists (one per box, what the command line's repeated option gives) -> the lists."""
+    if value is None:
+        return []
+    value = tuple(value)
+    if not value:
+        return []
+    if all(isinstance(v, Real) and not isinstance(v, bool) for v in value):
+        return [value]
+    return [tuple(v) if isinstance(v, (list, tuple)) else (v,) for v in value]
+
+
+def parse_prompts(object_box, object_box_frame: int | None, negative_box) -> tuple[list[BoxPrompt], list[BoxPrompt]]:
+    """(positive prompts sorted by frame, negative prompts) from the option values, or a
+    UserError naming the option and the value at fault."""
+    entries = as_entries(object_box)
+    positives: list[BoxPrompt] = []
+    single = len(entries) == 1 and len(entries[0]) == 4
+    if object_box_frame is not None and object_box_frame < 0:
+        raise UserError(f"{FRAME_OPTION} must be >= 0, got {object_box_frame}")
+    for e in entries:
+        text = _fmt(e) if all(isinstance(v, Real) for v in e) else " ".join(map(str, e))
+        if len(e) == 4:
+            if not single:
+                raise UserError(f"{POSITIVE} {text}: with several boxes, give each its frame: "
+                                f"{POSITIVE} FRAME X0 Y0 X1 Y1")
+            frame, box, own = object_box_frame or 0, e, False
+        elif len(e) == 5:
+            if object_box_frame is not None:
+                raise UserError(f"{FRAME_OPTION} {object_box_frame} goes with the single-box form {POSITIVE} X0 Y0 X1 Y1; "
+                                f"{POSITIVE} {text} names its own frame")
+            frame, box, own = e[0], e[1:], True
+        else:
+            raise UserError(f"{POSITIVE} {text}: expected X0 Y0 X1 Y1 or FRAME X0 Y0 X1 Y1, got {len(e)} numbers")
+        positives.append(_prompt(POSITIVE, text, frame, box, own))
+    if object_box_frame is not None and not entries:
+        raise UserError(f"{FRAME_OPTION} {object_box_frame} needs {POSITIVE} X0 Y0 X1 Y1")
+    negatives = []
+    for e in as_entries(negative_box):
+        text = " ".join(f"{v:g}" if isinstance(v, Real) else str(v) for v in e)
+        if len(e) != 5:
+            raise UserError(f"{NEGATIVE} {text}: expected FRAME X0 Y0 X1 Y1, got {len(e)} numbers")
+        negatives.append(_prompt(NEGATIVE, text, e[0], e[1:], True))
+    if negatives and not positives:
+        raise UserError(f"{NEGATIVE} {negatives[0].text} needs {POSITIVE}: a negative box only corrects the tracker "
+                        "that the object boxes start")
+    seen: dict[int, BoxPrompt] = {}
+    for p in positives:
+        if p.frame in seen:
+            raise UserError(f"{POSITIVE} {p.text}: frame {p.frame} already has the box {seen[p.frame].text}; "
+                            "give one box per frame")
+        seen[p.frame] = p
+    for n in negatives:
+        p = seen.get(n.frame)
+        if p is not None and covered_fraction(p.box, [m.box for m in negatives if m.frame == n.frame]) > 0.5:
+            raise UserError(f"{NEGATIVE} {n.text} covers most of {POSITIVE} {p.text} on frame {n.frame}: "
+                            "a negative box marks what is not the object")
+    return sorted(positives, key=lambda p: p.frame), negatives
+
+
+def _prompt(option: str, text: str, frame, box, own: bool) -> BoxPrompt:
+    if not all(isinstance(v, Real) and not isinstance(v, bool) and math.isfinite(v) for v in (frame, *box)):
+        raise UserError(f"{option} {text}: every value must be a finite number")
+    if float(frame) != int(frame) or frame < 0:
+        raise UserError(f"{option} {text}: the frame {frame:g} must be a whole number >= 0 (an index among the kept frames)")
+    x0, y0, x1, y1 = (float(v) for v in box)
+    if not (x1 > x0 and y1 > y0):
+        raise UserError(f"{option} {text}: the box must be X0 Y0 X1 Y1 with X1 > X0 and Y1 > Y0")
+    return BoxPrompt(int(frame), (x0, y0, x1, y1), option, text, own)
+
+
+def covered_fraction(box, others) -> float:
+    """The share of ``box``'s area that the union of the boxes ``others`` covers."""
+    x0, y0, x1, y1 = box
+    w, h = x1 - x0, y1 - y0
+    # On a grid fine enough for a check (1 % of the box), not exact geometry.
+    n = 100
+    xs = x0 + (np.arange(n) + 0.5) * w / n
+    ys = y0 + (np.arange(n) + 0.5) * h / n
+    gx, gy = np.meshgrid(xs, ys)
+    inside = np.zeros_like(gx, bool)
+    for a0, b0, a1, b1 in others:
+        inside |= (gx >= a0) & (gx <= a1) & (gy >= b0) & (gy <= b1)
+    return float(inside.mean())
+
+
+def check_against_frames(prompts: list[BoxPrompt], source_size: tuple[int, int], n_frames: int) -> None:
+    """UserError naming the option and value when a prompt's frame is not among the
+    ``n_frames`` kept frames or its box misses the ``source_size`` (width, height) frame."""
+    W, H = source_size
+    for p in prompts:
+        if not 0 <= p.frame < n_frames:
+            raise UserError(f"{p.frame_text()} is outside the {n_frames} processed frames (0..{n_frames - 1})")
+        x0, y0, x1, y1 = p.box
+        if x1 <= 0 or y1 <= 0 or x0 >= W or y0 >= H:
+            raise UserError(f"{p.option} {p.text} lies outside the {W}x{H} frame (the box is given in pixels of the input video)")
+        if (min(x1, W) - max(x0, 0)) < 3 or (min(y1, H) - max(y0, 0)) < 3:
+            raise UserError(f"{p.option} {p.text} covers less than 3x3 pixels of the frame")
+
+
+def box_mask(box: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """[H, W] bool: the pixels whose centres lie in ``box`` (x0, y0, x1, y1, processed pixels)."""
+    H, W = shape
+    x0, y0, x1, y1 = box
+    xs, ys = np.arange(W) + 0.5, np.arange(H) + 0.5
+    return ((ys >= y0) & (ys <= y1))[:, None] & ((xs >= x0) & (xs <= x1))[None, :]
