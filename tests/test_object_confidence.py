@@ -118,7 +118,10 @@ def test_lost_frames_give_the_object_no_supervision(small_synthetic, tmp_path, e
         assert any(oa[k].shape != ob[k].shape or not torch.equal(oa[k], ob[k]) for k in oa)
 
 
-def test_a_scene_whose_object_is_lost_on_every_training_frame_is_refused(tmp_path):
+def test_a_scene_whose_object_is_lost_on_every_training_frame_is_refused(tmp_path, capsys):
     root = make_tiny_scene(tmp_path / "tiny")
     _set_confidence(root, np.zeros(6))
     assert main(["train", "--scene", str(root), "--out", str(tmp_path / "run"), "--set", *TINY]) != 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "no training frame has an object confidence of at least 0.2 (object.json)" in err
+    assert not (tmp_path / "run").exists()  # refused before anything was written
