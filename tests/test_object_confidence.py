@@ -125,3 +125,23 @@ def test_a_scene_whose_object_is_lost_on_every_training_frame_is_refused(tmp_pat
     err = " ".join(capsys.readouterr().err.split())
     assert "no training frame has an object confidence of at least 0.2 (object.json)" in err
     assert not (tmp_path / "run").exists()  # refused before anything was written
+
+
+@pytest.mark.parametrize("single_stage", [False, True])
+def test_lost_frames_drop_the_object_mask_terms_but_keep_the_full_frame_rgb(small_synthetic, tmp_path, single_stage):
+    """Compositional stages (and the joint ablation) still draw lost frames: there the
+    object's mask and crop terms are absent, the full-frame RGB is not."""
+    train = load_scene(small_synthetic).split["train"]
+    lost = set(train[1::3])
+    scene = tmp_path / "a"
+    _lost_frames_variant(small_synthetic, scene, sorted(lost), "left")
+    extra = ["log_every=1", *(["schedule.single_stage=true"] if single_stage else [])]
+    assert main(["train", "--scene", str(scene), "--out", str(tmp_path / "run"), "--set", *TINY, *extra]) == 0
+    history = json.loads((tmp_path / "run" / "train_log.json").read_text())["history"]
+    rows = [h for h in history if h["stage"] in ("V", "VI", "joint")]
+    assert {h["frame"] in lost for h in rows} == {True, False}  # both kinds were drawn
+    for h in rows:
+        assert "compose.rgb" in h
+        assert ("compose.decomp_object" in h) == (h["frame"] not in lost), h
+        if single_stage:
+            assert ("object.silhouette" in h) == (h["frame"] not in lost), h
