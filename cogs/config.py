@@ -279,7 +279,7 @@ POSITIVE = CADENCES + (
 SIGNED = ("branches.human.seed_inset_m",)
 """Numbers that may be negative."""
 
-FRACTIONS = ("branches.human.held_out_input_weight", "object_appearance_warmup")
+FRACTIONS = ("branches.human.held_out_input_weight", "object_appearance_warmup", "branches.object.min_confidence")
 """Settings in [0, 1] besides every `*_fraction`."""
 
 MAX_SH_DEGREE = 3
@@ -288,6 +288,8 @@ ADDED: dict[tuple[str, str], str] = {
     ("TrainConfig", "refit"): "the pose refit after stage VI (2026-11-25)",
     ("LossWeights", "compose_rgb"): "the compositional RGB term's weight, 1 before it was a setting (2026-11-25)",
     ("HumanConfig", "visibility_max_frames"): "a bound on the frames visibility is counted on (2026-11-25)",
+    ("ObjectConfig", "min_confidence"): "frames whose object mask is not trusted leave the object's supervision; "
+                                        "scenes of older runs record no confidence, so every frame is kept (2026-11-26)",
 }
 """(dataclass, key) of settings added after runs were written: an older config.yaml that
 lacks one takes its default, which reproduces what that run did (or, for a new stage,

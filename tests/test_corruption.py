@@ -79,6 +79,17 @@ def _edit_json(path: Path, change: Callable[[dict], None]) -> None:
     path.write_text(json.dumps(obj))
 
 
+def confidence(values: dict) -> Callable[[Path], None]:
+    """Give object.json a per-frame `confidence` of 1, except `values` (frame index ->
+    value; None leaves that frame without one)."""
+    def change(o: dict) -> None:
+        for i, f in enumerate(o["frames"]):
+            v = values.get(i, 1.0)
+            if v is not None:
+                f["confidence"] = v
+    return lambda ws: _edit_json(ws / "scene" / "object.json", change)
+
+
 def _edit_npz(path: Path, **arrays) -> None:
     data = dict(np.load(path))
     data.update(arrays)
@@ -260,6 +271,12 @@ CASES = [
     C("object.json is a pipe", pipe_in_place_of("scene/object.json"), CHECK, ["object.json: not a regular file"]),
     C("object quaternion zero", lambda ws: _edit_json(ws / "scene" / "object.json", lambda o: o["frames"][1].update(quat_wxyz=[0, 0, 0, 0])),
       CHECK, ["object.json (frame 000001): `quat_wxyz` is zero"]),
+    C("object confidence above 1", confidence({2: 1.5}), CHECK,
+      ["object.json (frame 000002): `confidence` must be in [0, 1] (0 = object lost, 1 = mask trusted), got 1.5"]),
+    C("object confidence not finite", confidence({4: float("nan")}), CHECK, ["object.json (frame 000004): `confidence` must be finite"]),
+    C("object confidence a string", confidence({0: "high"}), CHECK, ["object.json (frame 000000): `confidence` must be a number in [0, 1], got 'high'"]),
+    C("object confidence on some frames only", confidence({3: None}), CHECK,
+      ["object.json (frame 000003): `confidence` is missing here but given on 5 of the 6 frames"]),
     C("points.ply garbage", write("scene/points.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 9\n"), CHECK, ["points.ply: unreadable PLY"]),
     C("planes.json without offset", planes("scene/planes.json", lambda o: o["planes"][0].pop("offset")), CHECK, ["planes.json: plane 0: `offset` is missing"]),
     # ground truth

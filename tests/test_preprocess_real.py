@@ -52,6 +52,12 @@ def test_real_clip_becomes_a_scene_that_cogs_check_accepts(real_scene):
     # The ball, prompted on frame 5, is found around it.
     assert s.object_masks[3:8].reshape(5, -1).any(1).all()
     assert not np.logical_and(s.human_masks, s.object_masks).any()  # one owner per pixel
+    # The tracker's per-frame confidence is recorded in the scene, as the objects step gave it.
+    with np.load(cfg.out / ".cache" / "objects.npz") as z:
+        tracker_conf = z["confidence"]
+    assert s.object.confidence is not None
+    np.testing.assert_array_equal(s.object.confidence, tracker_conf)
+    assert s.object.confidence[5] == 1.0  # the prompted frame
     assert report.stats["body"]["reprojection_error_mean"] < 0.05  # of the person's height
     assert report.preview.exists() and report.preview.stat().st_size > 10_000
 

@@ -20,6 +20,7 @@ from cogs.branches.object import ObjectBranch, ObjectConfig, carve_visual_hull, 
 from cogs.branches.scene import SceneBranch, SceneConfig
 from cogs.branches.splatback import splat_statistics
 from cogs.data.scene import Scene
+from cogs.errors import UserError
 from cogs.geometry.rotations import quat_to_rotmat, rotmat_from_two_vectors, rotmat_to_quat
 from cogs.geometry.splines import sample_trajectory
 
@@ -120,6 +121,18 @@ def random_human_seed(body, shape: torch.Tensor, cfg: BranchesConfig) -> HumanSe
                      weights=can.weights[nearest].clone(), normals=torch.zeros(n, 3, device=CPU))
 
 
+def object_train_frames(scene: Scene, min_confidence: float) -> list[int]:
+    """The training frames whose object mask may supervise the object (its confidence at
+    least `min_confidence`); a `UserError` naming the scene when there is none."""
+    trusted = scene.object_trusted(min_confidence)
+    frames = [int(t) for t in scene.split["train"] if trusted[t]]
+    if not frames:
+        raise UserError(f"scene {scene.root}: no training frame has an object confidence of at least "
+                        f"{min_confidence:g} (object.json): the object cannot be supervised; check the object "
+                        "masks, or lower branches.object.min_confidence")
+    return frames
+
+
 def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto",
                  randomise: torch.Generator | None = None) -> ObjectBranch | None:
     """Keyframes fitted to the initial poses and Gaussians on the voted visual hull,
@@ -135,7 +148,7 @@ def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto",
     tr, qs = sample_trajectory(key_times, p, v, q, tau)
     R = quat_to_rotmat(qs).numpy()
     centre = np.asarray(scene.object.centre, dtype=np.float64)
-    train = scene.split["train"]
+    train = object_train_frames(scene, ocfg.min_confidence)
     pts, normals, voxel = carve_visual_hull(
         scene.object_masks, scene.human_masks, scene.cameras.K, scene.cameras.world_to_camera,
         tr.numpy(), R, centre, train, ocfg,

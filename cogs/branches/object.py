@@ -54,6 +54,16 @@ class ObjectConfig:
     """A voxel survives when at least this fraction of the frames that decide it see it
     inside the (dilated) object mask; frames where it falls on the person abstain."""
     hull_dilate_px: int = 2
+    min_confidence: float = 0.2
+    """Frames whose object-mask confidence (the scene's object.json) is below this are left
+    out of everything the object mask supervises: the object stages never draw them, the
+    object's mask, crop and colour terms skip them, and the visual hull and the object's
+    initial colours ignore them; their trajectory is the keyframes' interpolation, held to
+    the initial poses by the pose prior. The classical tracker gives 0 where it lost the
+    object and at least 0.3 wherever a cue found it (0.3 for the hand cue alone, the floor
+    of a fitted shape); SAM2's and the user's masks give 0 on an empty mask, 1 otherwise:
+    0.2 leaves out exactly the frames marked lost. Chosen on that scale, not tuned on scenes
+    (a scene without confidences, e.g. every synthetic one, is unaffected by it)."""
     max_gaussians: int = 8000
     init_opacity: float = 0.6
     sh_degree: int = 0

@@ -9,7 +9,8 @@ A scene is a folder (documented in docs/scene-format.md):
     cameras.json          per-frame K [3x3] and world_to_camera [4x4] (OpenCV, metres)
     body.npz              body-model shape [S], per-frame pose [T, J, 3] (axis-angle), transl [T, 3]
     object.json           object centre c [3] and per-frame pose (quat_wxyz, translation):
-                          x_world = R(q) (x_canonical - c) + t
+                          x_world = R(q) (x_canonical - c) + t; optionally a per-frame
+                          mask confidence in [0, 1] (absent: every frame trusted)
     points.ply            sparse coloured points of the static scene
     planes.json           optional planar primitives
     gt/                   optional ground truth (synthetic scenes), same formats
@@ -106,27 +107,35 @@ class ObjectTrack:
     centre: np.ndarray  # [3] rotation pivot c, canonical coordinates
     quats: np.ndarray  # [T, 4] wxyz
     translations: np.ndarray  # [T, 3] world position of the centre
+    confidence: np.ndarray | None = None
+    """[T] in [0, 1]: how far each frame's object mask can be trusted (0 = the object was
+    lost there); None = every frame fully trusted (scenes written before it existed)."""
 
     def __len__(self) -> int:
         return len(self.quats)
 
     def to_json(self, frame_ids: list[str]) -> dict:
+        frames = [{"id": fid, "quat_wxyz": self.quats[i].tolist(), "translation": self.translations[i].tolist()}
+                  for i, fid in enumerate(frame_ids)]
+        if self.confidence is not None:
+            assert len(self.confidence) == len(frame_ids) and np.isfinite(self.confidence).all()
+            for f, c in zip(frames, self.confidence):
+                f["confidence"] = float(c)
         return {
             "centre": self.centre.tolist(),
             "convention": "x_world = R(quat_wxyz) (x_canonical - centre) + translation",
-            "frames": [
-                {"id": fid, "quat_wxyz": self.quats[i].tolist(), "translation": self.translations[i].tolist()}
-                for i, fid in enumerate(frame_ids)
-            ],
+            "frames": frames,
         }
 
     @classmethod
     def from_json(cls, obj: dict) -> "ObjectTrack":
         frames = obj["frames"]
+        has_conf = bool(frames) and all("confidence" in f for f in frames)  # all or none (the check says so)
         return cls(
             centre=np.array(obj["centre"], dtype=np.float64).reshape(3),
             quats=np.array([f["quat_wxyz"] for f in frames], dtype=np.float64).reshape(-1, 4),
             translations=np.array([f["translation"] for f in frames], dtype=np.float64).reshape(-1, 3),
+            confidence=np.array([f["confidence"] for f in frames], dtype=np.float64) if has_conf else None,
         )
 
     def rotation_matrices(self) -> np.ndarray:
@@ -206,6 +215,18 @@ class Scene:
     @property
     def has_object(self) -> bool:
         return self.object is not None
+
+    @property
+    def object_confidence(self) -> np.ndarray:
+        """[T] float64 in [0, 1]: the object masks' per-frame confidence (object.json);
+        ones when the scene records none, or has no object."""
+        c = None if self.object is None else self.object.confidence
+        return np.ones(self.n_frames) if c is None else np.asarray(c, dtype=np.float64)
+
+    def object_trusted(self, min_confidence: float) -> np.ndarray:
+        """[T] bool: frames whose object mask may supervise the object branch (confidence
+        at least `min_confidence`)."""
+        return self.object_confidence >= min_confidence
 
     def camera(self, t: int) -> Camera:
         return Camera(self.cameras.K[t], self.cameras.world_to_camera[t], self.width, self.height)

@@ -510,8 +510,11 @@ def _check_object(path: Path, rep: _Report, ids) -> None:
     if c is None or not np.isfinite(c).all():
         rep.add(path, "`centre` must be 3 finite numbers")
     frames = _frames_list(obj, path, rep, len(ids))
+    with_conf = sum(1 for f in frames or [] if isinstance(f, dict) and "confidence" in f)
     for i, f in enumerate(frames or []):
         fid = ids[i] if i < len(ids) else str(i)
+        if with_conf and isinstance(f, dict):
+            _check_confidence(path, rep, f, fid, with_conf, len(frames))
         q = _as_array(f.get("quat_wxyz") if isinstance(f, dict) else None, (4,))
         t = _as_array(f.get("translation") if isinstance(f, dict) else None, (3,))
         if q is None:
@@ -524,6 +527,21 @@ def _check_object(path: Path, rep: _Report, ids) -> None:
             rep.add(path, "`translation` must be 3 numbers", fid)
         elif not np.isfinite(t).all():
             rep.add(path, "`translation` has non-finite numbers", fid)
+
+
+def _check_confidence(path: Path, rep: _Report, f: dict, fid: str, with_conf: int, n_frames: int) -> None:
+    """The optional per-frame `confidence`: all frames or none, each a number in [0, 1]."""
+    if "confidence" not in f:
+        rep.add(path, f"`confidence` is missing here but given on {with_conf} of the {n_frames} frames "
+                      "(give it on every frame, or on none)", fid)
+        return
+    c = f["confidence"]
+    if not _is_number(c):
+        rep.add(path, f"`confidence` must be a number in [0, 1], got {c!r}", fid)
+    elif not math.isfinite(c):
+        rep.add(path, f"`confidence` must be finite, got {c!r}", fid)
+    elif not 0.0 <= c <= 1.0:
+        rep.add(path, f"`confidence` must be in [0, 1] (0 = object lost, 1 = mask trusted), got {c:g}", fid)
 
 
 def _check_points(path: Path, rep: _Report) -> None:

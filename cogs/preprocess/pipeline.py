@@ -363,7 +363,8 @@ class _Runner:
 
             update = ui.task(f"[9/{self.n_steps}] scene", 2)
             t0 = time.perf_counter()
-            self._write_scene(images, human_masks, obj_masks, bo, bmeta, op, pl, K, cmeta)
+            self._write_scene(images, human_masks, obj_masks, bo, bmeta, op, pl, K, cmeta,
+                              None if ob is None else ob["confidence"])
             update(1, "scene written")
             from cogs.preprocess.preview import contact_sheet
 
@@ -632,7 +633,7 @@ class _Runner:
         return {"planes": arr, "inliers": np.array([p["inliers"] for p in planes])}, {
             "labels": [p["label"] for p in planes], "summary": f"{len(planes)} planes", "stats": {"n_planes": len(planes)}}
 
-    def _write_scene(self, images, human_masks, obj_masks, bo, bmeta, op, pl, K, cmeta):
+    def _write_scene(self, images, human_masks, obj_masks, bo, bmeta, op, pl, K, cmeta, confidence=None):
         from cogs.data.scene import BodyTrack, CameraTrack, ObjectTrack, PlaneSpec, Scene, default_frame_ids, save_scene
         from cogs.data.validate import check_scene
         from cogs.data.scene import SceneError
@@ -645,7 +646,13 @@ class _Runner:
             raise UserError("no scene points could be made (no static pixels?)")
         obj = None
         if op is not None:
-            obj = ObjectTrack(centre=op["centre"].astype(np.float64), quats=op["quats"].astype(np.float64), translations=op["translations"].astype(np.float64))
+            # The objects step's per-frame confidence (the tracker's; for SAM2's and the user's
+            # masks 1 where a mask exists, 0 where empty), recorded so training can leave
+            # the frames where the object was lost out of the object's supervision.
+            assert confidence is not None and len(confidence) == T and np.isfinite(confidence).all()
+            obj = ObjectTrack(centre=op["centre"].astype(np.float64), quats=op["quats"].astype(np.float64),
+                              translations=op["translations"].astype(np.float64),
+                              confidence=np.clip(np.asarray(confidence, np.float64), 0.0, 1.0))
         source = {
             "tool": "cogs preprocess",
             "input": str(Path(self.cfg.input)),

@@ -30,10 +30,15 @@ class Frame:
     viewmat: Tensor  # [4, 4] world -> camera
     K: Tensor  # [3, 3]
     object_px: int  # pixels of the object mask
+    object_trusted: bool = True  # the object mask may supervise the object (its confidence >= the threshold)
 
 
 class TrainFrames:
-    def __init__(self, scene: Scene, device: torch.device | str = "cpu"):
+    """The scene's frames for training. `min_confidence`: frames whose object confidence
+    (object.json) is below it do not supervise the object (`Frame.object_trusted`) and
+    are not drawn by stages that only supervise the object (`pool`)."""
+
+    def __init__(self, scene: Scene, device: torch.device | str = "cpu", min_confidence: float = 0.0):
         self.device = torch.device(device)
         self._images = scene.images  # [T, H, W, 3] uint8
         self._human = scene.human_masks  # [T, H, W] bool
@@ -43,6 +48,15 @@ class TrainFrames:
         self.width, self.height = scene.width, scene.height
         self.train = [int(t) for t in scene.split["train"]]
         self.train_tensor = torch.tensor(self.train, dtype=torch.long, device=self.device)
+        self.object_trusted = scene.object_trusted(min_confidence)  # [T] bool
+        self.object_train = [t for t in self.train if self.object_trusted[t]]
+
+    def pool(self, objectives) -> list[int]:
+        """The frames a stage running `objectives` draws from: the trusted ones when the
+        object objective is all it runs (a lost frame would give it nothing to learn),
+        every training frame otherwise. Same length and order as `train` when every frame
+        is trusted, so such a scene draws exactly the frames it drew before confidences."""
+        return self.object_train if tuple(objectives) == ("object",) else self.train
 
     def _mask(self, m: np.ndarray) -> Tensor:
         return torch.from_numpy(np.ascontiguousarray(m)).to(self.device).float()[..., None]
@@ -60,12 +74,13 @@ class TrainFrames:
             t=t, image=self.image(t), human=self._mask(hm), object=self._mask(om),
             human_band=self._mask(L.boundary_band(hm)), object_band=self._mask(L.boundary_band(om)),
             viewmat=self.viewmats[t], K=self.Ks[t], object_px=int(om.sum()),
+            object_trusted=bool(self.object_trusted[t]),
         )
 
     def object_share(self) -> float:
-        """Mean fraction of the frame the object's padded crop box covers (training frames)."""
+        """Mean fraction of the frame the object's padded crop box covers (trusted training frames)."""
         fr = []
-        for t in self.train:
+        for t in self.object_train:
             m = torch.from_numpy(self._object[t])
             if bool(m.any()):
                 y0, y1, x0, x1 = L.crop_box(m, m)

@@ -8,6 +8,11 @@ as a named dict of weighted tensors, with the render (which feeds density contro
              edge and un-premultiplied colour, on a padded box round the object
     compose  every branch, the full frame: RGB and each branch's alpha against its mask
 
+The object's mask supervises nothing on a frame whose object confidence is below
+`ObjectConfig.min_confidence` (`Frame.object_trusted`): the object objective returns no
+terms there, compose drops its object-mask term but keeps the full-frame RGB (the pixels
+are the image whatever the masks say).
+
 A term is computed only when the stage's weights name it (`StageSpec.weights`). Image
 terms are pure functions in `losses.py`; the branches add their own regularisers
 (`Branch.regularisers`).
@@ -37,7 +42,8 @@ class StepInputs:
     crop_human: bool  # human terms on a padded box round the person (TrainConfig.crop_human_losses)
 
 
-Result = tuple[dict[str, Tensor], CompositeRender]
+Result = tuple[dict[str, Tensor], CompositeRender | None]
+"""The terms, and the render (None when the objective had nothing to measure on the frame)."""
 
 
 def _render(s: StepInputs, branches: tuple[str, ...] | None, background: Tensor) -> CompositeRender:
@@ -71,6 +77,8 @@ def human(s: StepInputs) -> Result:
 
 def object_(s: StepInputs) -> Result:
     w, f = s.weights, s.frame
+    if not f.object_trusted:  # the object was lost here: its mask would supervise the wrong pixels
+        return {}, None
     bg = s.background()
     out = _render(s, ("human", "object"), bg)
     img, hm, om = f.image, f.human, f.object
@@ -97,8 +105,11 @@ def compose(s: StepInputs) -> Result:
     w, f = s.weights, s.frame
     out = _render(s, None, f.image.new_zeros(3))
     terms = {"rgb": w["compose_rgb"] * L.photometric(out.rgb, f.image, w["l1"], w["dssim"])}
+    # On a frame whose object mask is not trusted, the human's mask term still leaves the
+    # object mask's pixels out: there the scene's human mask is the person minus that
+    # object mask (preprocess gives each pixel one owner), so they carry no evidence.
     terms["decomp"] = w["compose_human_mask"] * L.bce(out.branch_alpha["human"], f.human, 1.0 - f.object)
-    if s.model.object is not None:
+    if s.model.object is not None and f.object_trusted:
         terms["decomp_object"] = w["compose_object_mask"] * L.bce(out.branch_alpha["object"], f.object)
     return terms, out
 

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from cogs.branches.base import REGISTRY
-from cogs.branches.build import build_branch
+from cogs.branches.build import build_branch, object_train_frames
 from cogs.branches.human import compute_visibility
 from cogs.config import STAGES, TrainConfig, save_config, validate_config
 from cogs.data.scene import Scene
@@ -66,9 +66,11 @@ class Trainer:
         self.show_progress = show_progress
         self.device = torch.device(device)
         check_fits(scene.n_frames, scene.width, scene.height, cfg, scene.root)
-        self.frames = TrainFrames(scene, self.device)
+        self.frames = TrainFrames(scene, self.device, cfg.branches.object.min_confidence)
         if not self.frames.train:
             raise UserError(f"scene {scene.root}: the split has no training frames")
+        if scene.has_object:
+            object_train_frames(scene, cfg.branches.object.min_confidence)  # raises when none is trusted
         self.extent = self.frames.extent()
         self.stages = build_stages(cfg, len(self.frames.train), object_share=self.frames.object_share())
         skipped = [s for s in STAGES if getattr(cfg.schedule, s) == 0 and not cfg.schedule.single_stage]
@@ -199,7 +201,7 @@ class Trainer:
         weights = spec.weights_at(frac)
         self._refresh(spec, it, weights)
         self._schedule_lr(spec, frac, phases)
-        train = self.frames.train
+        train = self.frames.pool(spec.objectives)
         t = train[int(torch.randint(len(train), (1,), generator=self.gen, device="cpu"))]
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
@@ -212,7 +214,8 @@ class Trainer:
         for objective in spec.objectives:
             image_terms, render = OBJECTIVES[objective](inputs)
             terms.update({f"{objective}.{k}": v for k, v in image_terms.items()})
-            renders.append(render)
+            if render is not None:
+                renders.append(render)
         for name, branch in model.branches.items():
             scale = spec.scales.get(name)
             for k, v in branch.regularisers(weights, self.frames.train_tensor, prepared.get(name)).items():
