@@ -7,6 +7,7 @@ with a reason when they are missing. Everything else runs on synthetic frames.
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 import pytest
@@ -487,8 +488,10 @@ def test_a_look_alike_patch_of_static_scene_beside_the_object_stays_out_of_its_m
     ((10, 10, 20, 20), 9, "--object-box-frame 9"),
 ])  # fmt: skip
 def test_bad_object_prompts_raise_user_errors_naming_the_option(box, frame, message):
-    with pytest.raises(UserError, match=message):
-        O.check_box(box, (160, 120), frame, 8)
+    from cogs.preprocess.prompts import check_against_frames, parse_prompts
+
+    with pytest.raises(UserError, match=f"(?i){re.escape(message)}"):
+        check_against_frames(parse_prompts(box, frame, None)[0], (160, 120), 8)
 
 
 def _turning_object_clip(T=14, H=120, W=220, turn=6, hidden=()):

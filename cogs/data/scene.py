@@ -457,48 +457,46 @@ def _load_gt(root: Path, ids: list[str], has_object: bool, size: tuple[int, int]
     def fit_mask(a: np.ndarray) -> np.ndarray:
         return a if size is None else resize_mask(a, *size)
 
-    def fit_depth(d: np.ndarray) -> np.ndarray:  # nearest: no depth between a surface and what is behind it
-        return d if size is None else np.stack([cv2.resize(x, size, interpolation=cv2.INTER_NEAREST) for x in d])
+    def read_depth(path: Path) -> tuple[np.ndarray, int, int]:
+        """Depth maps [N, h, w] at the loading size, and the (width, height) of the file's."""
+        with np.load(path, allow_pickle=False) as z:
+            d = z["depth"].astype(np.float32)
+        H, W = d.shape[1:3]
+        if size is not None:  # nearest: no depth between a surface and what is behind it
+            d = np.stack([cv2.resize(x, size, interpolation=cv2.INTER_NEAREST) for x in d])
+        return d, W, H
 
-    def masks(kind: str, names: list[str], base: Path) -> np.ndarray:
-        paths = [base / "masks" / kind / f"{n}.png" for n in names]
-        first = fit_mask(read_mask(paths[0])) if paths else np.zeros((0, 0), bool)
-        return _read_all(paths, read_mask, first.shape, bool, fit_mask)
+    def masks(kind: str, names: list[str], base: Path, shape: tuple[int, int]) -> np.ndarray:
+        return _read_all([base / "masks" / kind / f"{n}.png" for n in names], read_mask, shape, bool, fit_mask)
 
     def scaled(track: CameraTrack, W: int, H: int) -> CameraTrack:
         if size is None:
             return track
         return CameraTrack(K=scale_intrinsics(track.K, size[0] / W, size[1] / H), world_to_camera=track.world_to_camera)
 
-    with np.load(root / "depth.npz", allow_pickle=False) as z:
-        raw = z["depth"].astype(np.float32)
-    depth_full_h, depth_full_w = raw.shape[1:3]
-    depth = fit_depth(raw)
-    del raw
+    depth, depth_full_w, depth_full_h = read_depth(root / "depth.npz")
     novel = None
     if (root / "novel" / "cameras.json").exists():
         cams_json = read_json(root / "novel" / "cameras.json")
         vids = [f["id"] for f in cams_json["frames"]]
-        with np.load(root / "novel" / "depth.npz", allow_pickle=False) as z:
-            raw_depth = z["depth"].astype(np.float32)
-        full_h, full_w = raw_depth.shape[1:3]
-        ndepth = fit_depth(raw_depth)
+        ndepth, full_w, full_h = read_depth(root / "novel" / "depth.npz")
+        shape = ndepth.shape[1:3]
         img_paths = [root / "novel" / "images" / f"{v}.png" for v in vids]
         novel = NovelViews(
             frames=np.array([f["frame"] for f in cams_json["frames"]], dtype=np.int64),
             cameras=scaled(CameraTrack.from_json(cams_json), full_w, full_h),
-            images=_read_all(img_paths, read_image, (*ndepth.shape[1:3], 3), np.uint8,
+            images=_read_all(img_paths, read_image, (*shape, 3), np.uint8,
                              (lambda a: a) if size is None else (lambda a: resize_image(a, *size))),
-            human_masks=masks("human", vids, root / "novel"),
-            object_masks=masks("object", vids, root / "novel"),
+            human_masks=masks("human", vids, root / "novel", shape),
+            object_masks=masks("object", vids, root / "novel", shape),
             depth=ndepth,
         )
     return GroundTruth(
         cameras=scaled(CameraTrack.from_json(read_json(root / "cameras.json")), depth_full_w, depth_full_h),
         body=BodyTrack.load(root / "body.npz"),
         object=ObjectTrack.from_json(read_json(root / "object.json")) if has_object else None,
-        human_masks=masks("human", ids, root),
-        object_masks=masks("object", ids, root) if has_object else None,
+        human_masks=masks("human", ids, root, depth.shape[1:3]),
+        object_masks=masks("object", ids, root, depth.shape[1:3]) if has_object else None,
         depth=depth,
         planes=_planes_from_json(read_json(root / "planes.json")) if (root / "planes.json").exists() else [],
         novel=novel,

@@ -486,7 +486,6 @@ def fit_object(
     if not has.any():
         raise ValueError("fit_object: every object mask is empty")
     assert np.isfinite(world_to_camera).all() and np.isfinite(hand_points_world).all(), "fit_object: non-finite body or cameras"
-    progress = (lambda k: on_frame(k)) if on_frame else None
 
     hand_cam = np.einsum("tij,tpj->tpi", R_wc, hand_points_world) + t_wc[:, None]
     root_cam = np.einsum("tij,tj->ti", R_wc, body_root_world) + t_wc
@@ -504,7 +503,7 @@ def fit_object(
 
     # 2. One rotation hypothesis per frame with a mask: silhouettes plus smooth turning in
     # the world; then again with the turning its features measure between those frames.
-    cost, trans_unit = silhouette_costs(frames, R_wc, hyps, pts_unit, on_frame=progress)
+    cost, trans_unit = silhouette_costs(frames, R_wc, hyps, pts_unit, on_frame=on_frame)
     weight = np.where(has, np.maximum(confidence, 0.05) * np.where(clear, 1.0, 0.5), 0.0)
     idx = np.flatnonzero(has)
     dist = rotation_distances(hyps)

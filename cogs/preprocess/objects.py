@@ -37,23 +37,6 @@ def scale_box(box: tuple[float, float, float, float], source_size: tuple[int, in
     return np.array([x0 * sx, y0 * sy, x1 * sx, y1 * sy], dtype=np.float64)
 
 
-def check_box(box, source_size: tuple[int, int], frame: int, n_frames: int) -> None:
-    """UserError naming the option when the prompt box is unusable."""
-    if not 0 <= frame < n_frames:
-        raise UserError(f"--object-box-frame {frame} is outside the {n_frames} processed frames (0..{n_frames - 1})")
-    x0, y0, x1, y1 = box
-    W, H = source_size
-    if not (x1 > x0 and y1 > y0):
-        raise UserError(f"--object-box {x0:g} {y0:g} {x1:g} {y1:g} must be x0 y0 x1 y1 with x1 > x0 and y1 > y0")
-    if x1 <= 0 or y1 <= 0 or x0 >= W or y0 >= H:
-        raise UserError(
-            f"--object-box {x0:g} {y0:g} {x1:g} {y1:g} lies outside the {W}x{H} frame "
-            "(the box is given in pixels of the input video)"
-        )
-    if (min(x1, W) - max(x0, 0)) < 3 or (min(y1, H) - max(y0, 0)) < 3:
-        raise UserError(f"--object-box {x0:g} {y0:g} {x1:g} {y1:g} covers less than 3x3 pixels of the frame")
-
-
 def read_mask_folder(folder: str | Path, n_frames: int, size: tuple[int, int], source_indices: np.ndarray | None = None) -> np.ndarray:
     """Ready-made object masks: one image per frame (sorted by name), resized -> [T, H, W] bool.
 

@@ -109,9 +109,9 @@ def import_humannerf(
     frames = sorted(p.stem for p in img_dir.iterdir() if p.suffix.lower() in _IMAGE_EXTS)
     if not frames:
         raise UserError(f"{img_dir}: no images")
-    n_all = len(frames)
-    if not select.identity:  # read only the frames kept; resized below
-        frames = [frames[i] for i in select.indices(n_all, str(img_dir))]
+    kept = None if select.identity else select.indices(len(frames), str(img_dir))
+    if kept is not None:  # read only the frames kept; resized below
+        frames = [frames[i] for i in kept]
     obj_dir = next((root / d for d in OBJECT_MASK_DIRS if (root / d).is_dir()), None)
 
     Ks, w2cs, images, humans, objects = [], [], [], [], []
@@ -212,12 +212,11 @@ def import_humannerf(
             "principal_point_shift_px": 0.5,
         },
     )
-    if not select.identity:
+    if kept is not None:
         data = select_frames(data, FrameSelection(max_side=select.max_side), _hosnerf_split, str(img_dir))
-        data.source["selection"] = {
-            "start": select.start, "stride": select.stride, "limit": select.limit, "max_side": select.max_side,
-            "frames_of_the_sequence": list(range(n_all))[select.start::select.stride][: select.limit],
-            "split": "the dataset's rule applied to the frames kept"}
+        # The frames were picked as they were read: record the selection as the user gave it.
+        data.source["selection"].update(start=select.start, stride=select.stride, limit=select.limit,
+                                        frames_of_the_sequence=kept)
     return write_scene(data, Path(out), body_model, smpl_model, overwrite=overwrite)
 
 
