@@ -106,7 +106,8 @@ def test_a_training_camera_survives_the_trip_through_the_browsers_camera(small_s
 
 def test_each_step_sends_the_human_and_object_as_cogs_poses_them_and_never_the_scene_again(run):
     from cogs.use.playback import timestep_poses
-    from cogs.use.view import RENDERERS, View, covariances
+    from cogs.render.projection import covariance_3d
+    from cogs.use.view import RENDERERS, View
 
     viewer = View(run_dir=run, port=free_port(), motion="anny:walk:0.5", object="hand-right").start()
     try:
@@ -123,7 +124,7 @@ def test_each_step_sends_the_human_and_object_as_cogs_poses_them_and_never_the_s
         for name in ("human", "object"):
             h = viewer.handles[name]
             np.testing.assert_array_equal(h.centers, want[name].means.numpy())
-            np.testing.assert_allclose(h.covariances, covariances(want[name].quats, want[name].scales).numpy(),
+            np.testing.assert_allclose(h.covariances, covariance_3d(want[name].quats, want[name].scales).numpy(),
                                        atol=2e-3 * float(want[name].scales.max() ** 2), rtol=2e-3)
         # Overlays: the skeleton joins the posed bone heads, the object's axes sit at its pose.
         viewer.show_skeleton.value = viewer.show_trajectory.value = True

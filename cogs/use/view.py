@@ -167,14 +167,6 @@ def cogs_camera(wxyz, position, fov: float, width: int, height: int) -> tuple[np
     return vm, K
 
 
-def covariances(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
-    """[N, 3, 3] covariance R diag(s^2) R^T of splats (quats wxyz [N, 4], std-dev scales [N, 3])."""
-    from cogs.geometry.rotations import quat_to_rotmat
-
-    M = quat_to_rotmat(quats) * scales[:, None, :]
-    return M @ M.transpose(1, 2)
-
-
 # -- the viewer -------------------------------------------------------------------------
 
 
@@ -239,8 +231,10 @@ class Viewer:
 
     @staticmethod
     def _arrays(s) -> dict[str, np.ndarray]:
+        from cogs.render.projection import covariance_3d
+
         return {"centers": s.means.detach().cpu().numpy(),
-                "covariances": covariances(s.quats, s.scales).detach().cpu().numpy(),
+                "covariances": covariance_3d(s.quats, s.scales).detach().cpu().numpy(),
                 "rgbs": s.rgb.clamp(0.0, 1.0).detach().cpu().numpy(),
                 "opacities": s.opacities[:, None].detach().cpu().numpy()}
 
