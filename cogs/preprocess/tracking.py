@@ -1021,6 +1021,8 @@ def combine_passes(forward: np.ndarray, backward: np.ndarray, agree: float = 0.5
 
     Not the more confident pass: the tracker's confidence says how well a fit matched its
     own colour model, and a track that drifted onto clothing matches the clothing well.
+    ``agree`` 0.5 is set, not swept: it only separates two passes on the same object from
+    passes on different things (docs/experiments/2026-11-25-several-prompts.md).
     """
     n = len(forward)
     assert n == len(backward) and n >= 2
