@@ -64,6 +64,12 @@ class Preprocess:
     in pixels of the input video. The tracker never takes its pixels on that
     frame, and its colours count against the object in the whole clip."""
 
+    person_box: Annotated[tuple[float, ...] | None, tyro.conf.arg(metavar="[FRAME] X0 Y0 X1 Y1")] = None
+    """The person to reconstruct when several are in view: a box around them, in pixels of
+    the input video, on frame FRAME (default 0). That person alone is followed from frame
+    to frame; the others become part of the scene. Without it MediaPipe's choice on the
+    whole frame is taken (right for one person in view)."""
+
     object_masks: Path | None = None
     """Folder of ready-made object masks (one image per frame, sorted by name; white =
     object), instead of --object-box."""
@@ -138,6 +144,12 @@ class Preprocess:
 
         return parse_prompts(self.object_box, self.object_box_frame, self.object_negative_box)
 
+    def person_prompt(self):
+        """The --person-box prompt or None; UserError naming the option when malformed."""
+        from cogs.preprocess.prompts import parse_person_box
+
+        return parse_person_box(self.person_box)
+
     def check_options(self) -> None:
         """UserError naming the option, before any work or any file is written."""
         import math
@@ -172,6 +184,7 @@ class Preprocess:
                 raise UserError(f"{option} must be between {lo:g} and {hi:g}, got {v:g}")
         if not math.isfinite(self.min_parallax) or self.min_parallax < 0:
             raise UserError(f"--min-parallax must be >= 0, got {self.min_parallax:g}")
+        self.person_prompt()
         positives, negatives = self.object_prompts()
         if self.object_masks is not None and (positives or negatives):
             option = "--object-box" if positives else "--object-negative-box"

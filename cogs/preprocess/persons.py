@@ -168,6 +168,268 @@ def detect_persons(images: np.ndarray, on_frame=None, mask_threshold: float = 0.
     return PersonTrack(masks, probs, kp2d, kp3d, detected)
 
 
+# Hand edges (wrist to pinky, index and thumb) drawn besides EDGES when bounding a body.
+_HAND_EDGES = ((15, 17), (15, 19), (15, 21), (16, 18), (16, 20), (16, 22))
+
+
+def _torso_length(kp: np.ndarray) -> float:
+    """Pixels from the shoulders' midpoint to the hips' (NaN when a point is missing)."""
+    return float(np.linalg.norm(kp[[11, 12], :2].mean(0) - kp[[23, 24], :2].mean(0)))
+
+
+def body_region(kp: np.ndarray, shape: tuple[int, int], reach: float) -> np.ndarray:
+    """[H, W] bool: the pixels a body with 2D keypoints ``kp`` [33, 3] can cover: every bone
+    drawn ``reach`` pixels to each side, the torso's quadrilateral filled, a disc of radius
+    ``reach`` around the face's points. A neighbour whose mask touches the person's lies
+    mostly outside it."""
+    import cv2
+
+    region = np.zeros(shape, np.uint8)
+    pts = kp[:, :2]
+    ok = np.isfinite(pts).all(1)
+    r = max(1, int(round(reach)))
+    xy = np.round(np.where(ok[:, None], pts, 0)).astype(np.int64).clip(-(2**20), 2**20)
+    for a, b in (*EDGES, *_HAND_EDGES):
+        if ok[a] and ok[b]:
+            cv2.line(region, (int(xy[a, 0]), int(xy[a, 1])), (int(xy[b, 0]), int(xy[b, 1])), 1, thickness=2 * r + 1)
+    torso = [i for i in (11, 12, 24, 23) if ok[i]]
+    if len(torso) >= 3:
+        cv2.fillPoly(region, [xy[torso].astype(np.int32)], 1)
+    face = [i for i in range(11) if ok[i]]
+    if face:
+        c = xy[face].mean(0)
+        cv2.circle(region, (int(c[0]), int(c[1])), r, 1, thickness=-1)
+    return region > 0
+
+
+def _grow(box: np.ndarray, by: float, shape: tuple[int, int]) -> np.ndarray:
+    """A box (x0, y0, x1, y1) grown by ``by`` times its longer side on every side, clipped."""
+    H, W = shape
+    x0, y0, x1, y1 = box
+    m = by * max(x1 - x0, y1 - y0)
+    return np.array([max(0.0, x0 - m), max(0.0, y0 - m), min(float(W), x1 + m), min(float(H), y1 + m)])
+
+
+def _extent(mask: np.ndarray, kp: np.ndarray) -> np.ndarray:
+    """The box around a person's mask and confidently seen keypoints."""
+    H, W = mask.shape
+    xs, ys = [], []
+    if mask.any():
+        yy, xx = np.nonzero(mask)
+        xs += [xx.min(), xx.max() + 1]
+        ys += [yy.min(), yy.max() + 1]
+    seen = kp[(kp[:, 2] > 0.5) & np.isfinite(kp).all(1), :2]
+    xs += list(seen[:, 0])
+    ys += list(seen[:, 1])
+    return np.array([max(0.0, min(xs)), max(0.0, min(ys)), min(float(W), max(xs)), min(float(H), max(ys))])
+
+
+def torso_colours(image: np.ndarray, kp: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
+    """A person's clothes as a normalised 8x8x8 RGB histogram of the pixels inside the torso's
+    quadrilateral (shoulders, hips) and the person's mask; None when fewer than 30 pixels."""
+    import cv2
+
+    poly = kp[[11, 12, 24, 23], :2]
+    if not np.isfinite(poly).all():
+        return None
+    H, W = mask.shape
+    x0, y0 = np.clip(np.floor(poly.min(0)).astype(int), 0, [W, H])
+    x1, y1 = np.clip(np.ceil(poly.max(0)).astype(int) + 1, 0, [W, H])
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    region = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.fillPoly(region, [(poly - [x0, y0]).round().astype(np.int32)], 1)
+    region &= mask[y0:y1, x0:x1].astype(np.uint8)
+    if region.sum() < 30:
+        return None
+    hist = cv2.calcHist([np.ascontiguousarray(image[y0:y1, x0:x1])], [0, 1, 2], region, [8, 8, 8], [0, 256] * 3)
+    return (hist / hist.sum()).astype(np.float32)
+
+
+def colour_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Bhattacharyya distance of two normalised histograms: 0 alike .. 1 disjoint."""
+    import cv2
+
+    return float(cv2.compareHist(a, b, cv2.HISTCMP_BHATTACHARYYA))
+
+
+@dataclass
+class FollowSettings:
+    """How ``follow_person`` keeps to one person. Set from the human build, not swept:
+    ``context`` is how much of the frame beyond the person's last box the pose model sees
+    (the person's motion between frames); ``reach`` how far beyond the last mask the
+    person may be now and how thick a limb may be, as a fraction of the torso length
+    (shoulders to hips, about a third of a standing person's height); ``max_jump`` and
+    ``max_scale`` what a torso can do from one frame to the next; ``max_colour`` the
+    Bhattacharyya distance of torso colours (``torso_colours``) beyond which a find is
+    somebody else."""
+
+    context: float = 0.3  # of the last box's longer side, on every side
+    reach: float = 0.6  # of the torso length
+    max_jump: float = 1.0  # torso lengths the torso's centre may move from one frame to the next
+    miss_jump: float = 0.25  # how much more, times max_jump, for each frame missed since the last find
+    max_scale: float = 2.5  # the most the torso length may grow or shrink between found frames (a bend)
+    near: float = 0.3  # torso lengths: a find closer to the last one needs no colour check
+    max_colour: float = 0.6
+    attempts: int = 3  # finds tried per frame, each after painting out the ones rejected
+
+
+class _Followed:
+    """What is known of the followed person along one pass."""
+
+    def __init__(self, box: np.ndarray, shape: tuple[int, int], s: FollowSettings):
+        self.s = s
+        self.shape = shape
+        self.last = np.clip(box, 0, [shape[1], shape[0]] * 2)  # the box where they were last found
+        self.allowed = np.zeros(shape, bool)  # where they can be now
+        x0, y0, x1, y1 = _grow(self.last, 0.05, shape).round().astype(int)
+        self.allowed[y0:y1, x0:x1] = True
+        self.torso = None  # (centre, length) at the last find
+        self.colours = None  # torso_colours, a running mean over the finds
+        self.misses = 0
+
+    def rejects(self, kp: np.ndarray, colours: np.ndarray | None) -> str | None:
+        """Why a find ``kp`` is not the followed person, or None when it may be."""
+        length = _torso_length(kp)
+        if not (np.isfinite(length) and length > 1):
+            return "no torso"
+        jump = 0.0
+        if self.torso is None:  # the first find: the person in the user's box
+            x0, y0, x1, y1 = self.last
+            cx, cy = kp[[11, 12, 23, 24], :2].mean(0)
+            if not (x0 <= cx <= x1 and y0 <= cy <= y1):
+                return "torso outside the box"
+        else:
+            centre, last = self.torso
+            jump = float(np.linalg.norm(kp[[11, 12, 23, 24], :2].mean(0) - centre)) / last
+            if jump > self.s.max_jump * (1 + self.s.miss_jump * self.misses):
+                return f"moved {jump:.2f} torso lengths"
+            if not 1 / self.s.max_scale <= length / last <= self.s.max_scale:
+                return f"torso {length / last:.2f}x the last"
+        # Where the person was, a turn or a shadow may change the clothes' colours; a find
+        # that moved further must also look like them.
+        if jump > self.s.near and self.colours is not None and colours is not None:
+            d = colour_distance(colours, self.colours)
+            if d > self.s.max_colour:
+                return f"moved {jump:.2f} torso lengths and colours {d:.2f} apart"
+        return None
+
+    def found(self, kp: np.ndarray, mask: np.ndarray, colours: np.ndarray | None) -> None:
+        import cv2
+
+        length = _torso_length(kp)
+        self.torso = (kp[[11, 12, 23, 24], :2].mean(0), length)
+        if colours is not None:
+            self.colours = colours if self.colours is None else 0.8 * self.colours + 0.2 * colours
+        self.last = _extent(mask, kp)
+        grown = (mask | body_region(kp, self.shape, 0.5 * self.s.reach * length)).astype(np.uint8)
+        self.allowed = cv2.dilate(grown, _disc(self.s.reach * length)) > 0
+        self.misses = 0
+
+    def missed(self) -> None:
+        import cv2
+
+        self.misses += 1
+        if self.torso is not None:  # they may have moved on: widen where they may be
+            self.allowed = cv2.dilate(self.allowed.astype(np.uint8), _disc(self.s.reach * self.torso[1])) > 0
+
+
+def _disc(radius: float) -> np.ndarray:
+    import cv2
+
+    k = 2 * int(round(radius)) + 1
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+
+
+def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_threshold: float = 0.5,
+                  settings: FollowSettings | None = None) -> PersonTrack:
+    """The one person inside ``box`` (x0, y0, x1, y1, pixels of ``images``) on ``frame``,
+    followed through frames [T, H, W, 3] -> a PersonTrack of that person only.
+
+    With several people in view MediaPipe Pose finds one person per image, and on the
+    whole frame not always the same one. Here each frame, walking forwards from ``frame``
+    and then backwards from it, shows the pose model only a window around where the
+    followed person was last found, with every pixel farther than ``reach`` from the
+    person's last mask painted grey: whoever else stands there is mostly not in the image
+    it sees. A find whose torso jumps, changes size, or whose clothes' colours differ
+    (``FollowSettings``) is somebody else: that find's body is painted grey too and the
+    model is asked again, up to ``attempts`` times; a frame without an accepted find has
+    no person (the body is interpolated there), and the window widens until the person
+    is found again. The person's mask keeps only the pixels within ``reach`` of the
+    frame's skeleton (``body_region``), so a neighbour touching the person stays scene.
+    """
+    mp = import_mediapipe()
+    s = settings or FollowSettings()
+    T, H, W, _ = images.shape
+    masks = np.zeros((T, H, W), dtype=bool)
+    probs = np.zeros((T, H, W), dtype=np.uint8)
+    kp2d = np.full((T, N_LANDMARKS, 3), np.nan, dtype=np.float32)
+    kp3d = np.full((T, N_LANDMARKS, 3), np.nan, dtype=np.float32)
+    detected = np.zeros(T, dtype=bool)
+    with _quiet_native_logs():
+        # Static mode: each window is a new image (video mode's own tracking assumes the
+        # whole frame, which moves here with the window).
+        pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=True,
+                                      min_detection_confidence=0.5)
+    done = 0
+    try:
+        for order in (range(frame, T), range(frame - 1, -1, -1)):
+            person = _Followed(np.asarray(box, np.float64), (H, W), s)
+            for t in order:
+                visible = person.allowed.copy()
+                set_aside = np.zeros((H, W), bool)  # the bodies of finds taken for somebody else
+                # Nobody found: the window is widened, then the frame beyond where the person
+                # could be is shown too (a bend or a subsampled clip moves a body further).
+                wide, shown = 1, False
+                for _ in range(s.attempts + 2):
+                    x0, y0, x1, y1 = _grow(person.last, s.context * wide * (1 + person.misses), (H, W)).round().astype(int)
+                    window = images[t, y0:y1, x0:x1].copy()
+                    window[~visible[y0:y1, x0:x1]] = 127
+                    with _quiet_native_logs(), warnings.catch_warnings():
+                        warnings.filterwarnings("ignore", message=".*GetPrototype.*", category=UserWarning)
+                        res = pose.process(np.ascontiguousarray(window))
+                    if res.pose_landmarks is None:
+                        if wide == 1:
+                            wide = 3
+                            continue
+                        if not shown:
+                            shown, visible = True, ~set_aside
+                            continue
+                        break
+                    h, w = window.shape[:2]
+                    kp = np.array([(p.x * w + x0, p.y * h + y0, p.visibility) for p in res.pose_landmarks.landmark], np.float32)
+                    length = _torso_length(kp)
+                    soft = np.zeros((H, W), np.float32)
+                    if res.segmentation_mask is not None and np.isfinite(length):
+                        soft[y0:y1, x0:x1] = np.clip(res.segmentation_mask, 0.0, 1.0)
+                        soft[~(person.allowed & body_region(kp, (H, W), s.reach * length))] = 0.0
+                    mask = clean_person_mask(soft > mask_threshold, kp)
+                    colours = torso_colours(images[t], kp, mask)
+                    why = person.rejects(kp, colours)
+                    if why is None:
+                        detected[t] = True
+                        kp2d[t] = kp
+                        if res.pose_world_landmarks is not None:
+                            kp3d[t] = [(p.x, p.y, p.z) for p in res.pose_world_landmarks.landmark]
+                        probs[t] = (soft * 255 + 0.5).astype(np.uint8)
+                        masks[t] = mask
+                        person.found(kp, mask, colours)
+                        break
+                    log.debug("frame %d: a person set aside (%s)", t, why)
+                    if not np.isfinite(length):
+                        break
+                    set_aside |= body_region(kp, (H, W), s.reach * length)
+                    visible &= ~set_aside
+                if not detected[t]:
+                    person.missed()
+                done += 1
+                if on_frame:
+                    on_frame(done)
+    finally:
+        pose.close()
+    return PersonTrack(masks, probs, kp2d, kp3d, detected)
+
+
 def refine_masks_sam2(images: np.ndarray, track: PersonTrack, checkpoint: Path, config: str, on_frame=None) -> np.ndarray:
     """Re-segment the person with SAM2 (box prompt from each frame's MediaPipe mask) -> [T, H, W] bool.
 

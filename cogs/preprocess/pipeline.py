@@ -308,12 +308,17 @@ class _Runner:
             self.fps = float(fmeta["fps"])
             self.source_indices = fr["source_indices"]
             self.positives, self.negatives = cfg.object_prompts()
-            if self.positives:  # the boxes against the frames, before the steps that take long
+            self.person = cfg.person_prompt()
+            boxes = self.positives + self.negatives + ([self.person] if self.person else [])
+            if boxes:  # the boxes against the frames, before the steps that take long
                 from cogs.preprocess.prompts import check_against_frames
 
-                check_against_frames(self.positives + self.negatives, self.source_size, T)
+                check_against_frames(boxes, self.source_size, T)
 
-            pe, _ = self._step(ui, 2, "persons", {"threshold": cfg.person_threshold, "refine": cfg.refine_person_masks, "sam2": str(cfg.sam2_checkpoint)}, ["frames"], lambda lb: self._persons(lb, ui, images))
+            person_params = {"threshold": cfg.person_threshold, "refine": cfg.refine_person_masks, "sam2": str(cfg.sam2_checkpoint)}
+            if self.person:  # only then, so that caches made before the option stay valid
+                person_params["person_box"] = self.person.record()
+            pe, _ = self._step(ui, 2, "persons", person_params, ["frames"], lambda lb: self._persons(lb, ui, images))
             if not pe["detected"].any():
                 raise UserError(f"no person detected in any of the {T} frames of {src}")
 
@@ -405,7 +410,15 @@ class _Runner:
 
         T = len(images)
         update = ui.task(label, T)
-        track = detect_persons(images, on_frame=lambda k: update(k), mask_threshold=self.cfg.person_threshold)
+        if self.person is not None:
+            from cogs.preprocess.objects import scale_box
+            from cogs.preprocess.persons import follow_person
+
+            box = scale_box(self.person.box, self.source_size, (images.shape[2], images.shape[1]))
+            track = follow_person(images, self.person.frame, box, on_frame=lambda k: update(k),
+                                  mask_threshold=self.cfg.person_threshold)
+        else:
+            track = detect_persons(images, on_frame=lambda k: update(k), mask_threshold=self.cfg.person_threshold)
         if self.cfg.refine_person_masks and self.cfg.sam2_checkpoint is None:
             import cv2
 
@@ -663,6 +676,8 @@ class _Runner:
             "split_protocol": "hosnerf-16" if T >= 32 else "every 4th from frame 2",
             "body_fit": bmeta.get("stats", {}),
         }
+        if self.person is not None:  # in pixels of the input video, a frame among the kept ones
+            source["person_prompt"] = self.person.record()
         if self.positives:  # in pixels of the input video, frames among the kept ones
             source["object_prompts"] = {"boxes": [p.record() for p in self.positives],
                                         "negative_boxes": [n.record() for n in self.negatives]}

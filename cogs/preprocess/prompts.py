@@ -1,4 +1,4 @@
-"""The object prompts of `cogs preprocess`: boxes on the object, and boxes that are not it.
+"""The prompts of `cogs preprocess`: boxes on the object, boxes that are not it, and the person's box.
 
 On the command line (see `Preprocess.object_box`):
 
@@ -11,7 +11,11 @@ tracker restarts from every positive box (``tracking.propagate_masks``); a negat
 pixels are never object on its frame, and its colours count against the object in every
 colour model of the clip.
 
-Everything that can be checked without the frames is checked by ``parse_prompts`` (called
+The person to follow when several are in view is one box on one frame:
+
+    --person-box [K] X0 Y0 X1 Y1                          the person inside the box on frame K (default 0)
+
+(``persons.follow_person``). Everything that can be checked without the frames is checked by ``parse_prompts`` (called
 by ``Preprocess.check_options`` before any work); the frame indices and the boxes against
 the frame size by ``check_against_frames``, as soon as the clip's size is known.
 """
@@ -27,6 +31,7 @@ import numpy as np
 from cogs.errors import UserError
 
 POSITIVE = "--object-box"
+PERSON = "--person-box"
 NEGATIVE = "--object-negative-box"
 FRAME_OPTION = "--object-box-frame"
 
@@ -113,6 +118,21 @@ def parse_prompts(object_box, object_box_frame: int | None, negative_box) -> tup
             raise UserError(f"{NEGATIVE} {n.text} covers most of {POSITIVE} {p.text} on frame {n.frame}: "
                             "a negative box marks what is not the object")
     return sorted(positives, key=lambda p: p.frame), negatives
+
+
+def parse_person_box(person_box) -> BoxPrompt | None:
+    """The ``--person-box [FRAME] X0 Y0 X1 Y1`` prompt (frame 0 when not given), None
+    without one, or a UserError naming the value at fault."""
+    entries = as_entries(person_box)
+    if not entries:
+        return None
+    e = entries[0] if len(entries) == 1 else tuple(v for entry in entries for v in entry)
+    text = " ".join(f"{v:g}" if isinstance(v, Real) else str(v) for v in e)
+    if len(e) == 4:
+        return _prompt(PERSON, text, 0, e, True)
+    if len(e) == 5:
+        return _prompt(PERSON, text, e[0], e[1:], True)
+    raise UserError(f"{PERSON} {text}: expected X0 Y0 X1 Y1 or FRAME X0 Y0 X1 Y1, got {len(e)} numbers")
 
 
 def _prompt(option: str, text: str, frame, box, own: bool) -> BoxPrompt:

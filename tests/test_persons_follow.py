@@ -1,0 +1,110 @@
+"""Following one person among several (`cogs preprocess --person-box`).
+
+The clip: twelve frames of the synthetic benchmark with a second person pasted beside the
+first — the same body, 70 px to the right and in other clothes (colour channels
+reversed), so the two walk side by side, and touch when the first bends. MediaPipe runs
+for real (the test skips without the `preprocess` extra).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cogs.errors import UserError
+
+SHIFT = 70  # pixels between the two people
+
+
+@pytest.fixture(scope="module")
+def two_people(default_scene_dir):
+    pytest.importorskip("mediapipe", reason="mediapipe is in the optional `preprocess` extra")
+    from PIL import Image
+
+    frames = range(0, 48, 4)
+    images = np.stack([np.asarray(Image.open(default_scene_dir / "images" / f"{t:06d}.png").convert("RGB")) for t in frames])
+    human = np.stack([np.asarray(Image.open(default_scene_dir / "masks" / "human" / f"{t:06d}.png")) > 127 for t in frames])
+    T, H, W, _ = images.shape
+    out, second = images.copy(), np.zeros_like(human)
+    second[:, :, SHIFT:] = human[:, :, : W - SHIFT]
+    recoloured = np.zeros_like(images)
+    recoloured[:, :, SHIFT:] = images[:, :, : W - SHIFT, ::-1]
+    out[second] = recoloured[second]
+    first = human & ~second  # what stays visible of the first person
+    return out, first, second
+
+
+def _box(mask: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4], float)
+
+
+def _share(mask: np.ndarray, of: np.ndarray) -> float:
+    return float((mask & of).sum()) / max(1, int(mask.sum()))
+
+
+@pytest.mark.parametrize("followed", ["first", "second"])
+def test_the_person_in_the_box_is_followed_and_the_other_never_enters_the_mask(two_people, followed):
+    from cogs.preprocess.persons import follow_person
+
+    images, first, second = two_people
+    own, other = (first, second) if followed == "first" else (second, first)
+    track = follow_person(images, 0, _box(own[0]))
+    found = np.flatnonzero(track.detected)
+    # MediaPipe finds the recoloured person less often (its skin is blue); a frame where
+    # the followed person is not found has no person rather than the other one.
+    assert len(found) >= (10 if followed == "first" else 3)
+    for t in found:
+        assert _share(track.masks[t], other[t]) < 0.02, f"frame {t}: the mask took the other person"
+        assert _share(track.masks[t], own[t]) > 0.6, f"frame {t}: the mask is not on the followed person"
+        centre = track.kp2d[t, [11, 12, 23, 24], :2].mean(0)
+        assert own[t][int(centre[1]), int(centre[0])] or _share(track.masks[t], own[t]) > 0.9
+    assert np.isnan(track.kp2d[~track.detected]).all()
+
+
+def test_the_first_person_found_must_be_in_the_box(two_people):
+    """A box on an empty part of the frame follows nobody, not whoever is nearest."""
+    from cogs.preprocess.persons import follow_person
+
+    images, _, _ = two_people
+    H, W = images.shape[1:3]
+    track = follow_person(images[:3], 0, np.array([W - 30, 0, W, 30], float))
+    assert not track.detected.any()
+
+
+def test_body_region_covers_the_limbs_and_leaves_a_neighbour_out():
+    from cogs.preprocess.persons import N_LANDMARKS, body_region
+
+    kp = np.full((N_LANDMARKS, 3), np.nan, np.float32)
+    # A standing figure: shoulders at y 40, hips at y 80, knees 110, ankles 140.
+    for i, (x, y) in {11: (40, 40), 12: (60, 40), 23: (44, 80), 24: (56, 80), 25: (44, 110),
+                      26: (56, 110), 27: (44, 140), 28: (56, 140), 13: (36, 60), 15: (34, 80)}.items():
+        kp[i] = (x, y, 1.0)
+    region = body_region(kp, (160, 160), reach=6)
+    assert region[60, 50] and region[125, 44] and region[70, 35]  # torso, shin, forearm
+    assert not region[60, 100] and not region[20, 130]  # a neighbour's place
+
+
+@pytest.mark.parametrize("value, message", [
+    ((10, 10, 5, 20), "X1 > X0"),
+    ((1, 2, 3), "got 3 numbers"),
+    ((-1, 0, 0, 10, 10), "whole number >= 0"),
+])  # fmt: skip
+def test_bad_person_boxes_raise_user_errors_naming_the_option(value, message):
+    from cogs.preprocess.prompts import parse_person_box
+
+    with pytest.raises(UserError, match=f"--person-box.*{message}"):
+        parse_person_box(value)
+
+
+def test_a_person_box_off_the_frames_is_refused_before_any_work():
+    from cogs.preprocess.prompts import check_against_frames, parse_person_box
+
+    assert parse_person_box(None) is None
+    prompt = parse_person_box((3, 10, 10, 40, 60))
+    assert (prompt.frame, prompt.box) == (3, (10.0, 10.0, 40.0, 60.0))
+    assert parse_person_box((10, 10, 40, 60)).frame == 0
+    with pytest.raises(UserError, match="--person-box 3 10 10 40 60: frame 3 is outside"):
+        check_against_frames([prompt], (160, 120), 3)
+    with pytest.raises(UserError, match="--person-box 500 10 600 60 lies outside the 160x120 frame"):
+        check_against_frames([parse_person_box((500, 10, 600, 60))], (160, 120), 3)
