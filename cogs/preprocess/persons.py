@@ -177,11 +177,11 @@ def _torso_length(kp: np.ndarray) -> float:
     return float(np.linalg.norm(kp[[11, 12], :2].mean(0) - kp[[23, 24], :2].mean(0)))
 
 
-def body_region(kp: np.ndarray, shape: tuple[int, int], reach: float) -> np.ndarray:
+def body_region(kp: np.ndarray, shape: tuple[int, int], reach: float, head: float | None = None) -> np.ndarray:
     """[H, W] bool: the pixels a body with 2D keypoints ``kp`` [33, 3] can cover: every bone
     drawn ``reach`` pixels to each side, the torso's quadrilateral filled, a disc of radius
-    ``reach`` around the face's points. A neighbour whose mask touches the person's lies
-    mostly outside it."""
+    ``head`` (default ``reach``) around the face's points. A neighbour whose mask touches
+    the person's lies mostly outside it."""
     import cv2
 
     region = np.zeros(shape, np.uint8)
@@ -198,7 +198,7 @@ def body_region(kp: np.ndarray, shape: tuple[int, int], reach: float) -> np.ndar
     face = [i for i in range(11) if ok[i]]
     if face:
         c = xy[face].mean(0)
-        cv2.circle(region, (int(c[0]), int(c[1])), r, 1, thickness=-1)
+        cv2.circle(region, (int(c[0]), int(c[1])), max(1, int(round(head or reach))), 1, thickness=-1)
     return region > 0
 
 
@@ -259,13 +259,16 @@ class FollowSettings:
     ``context`` is how much of the frame beyond the person's last box the pose model sees
     (the person's motion between frames); ``reach`` how far beyond the last mask the
     person may be now and how thick a limb may be, as a fraction of the torso length
-    (shoulders to hips, about a third of a standing person's height); ``max_jump`` and
+    (shoulders to hips, about a third of a standing person's height); ``limb`` and
+    ``head`` how far from the skeleton the person's mask may reach; ``max_jump`` and
     ``max_scale`` what a torso can do from one frame to the next; ``max_colour`` the
     Bhattacharyya distance of torso colours (``torso_colours``) beyond which a find is
     somebody else."""
 
     context: float = 0.3  # of the last box's longer side, on every side
     reach: float = 0.6  # of the torso length
+    limb: float = 0.3  # torso lengths a mask pixel may lie from a bone (clothes, keypoint error)
+    head: float = 0.5  # torso lengths a mask pixel may lie from the face's centre
     max_jump: float = 1.0  # torso lengths the torso's centre may move from one frame to the next
     miss_jump: float = 0.25  # how much more, times max_jump, for each frame missed since the last find
     max_scale: float = 2.5  # the most the torso length may grow or shrink between found frames (a bend)
@@ -355,8 +358,9 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
     (``FollowSettings``) is somebody else: that find's body is painted grey too and the
     model is asked again, up to ``attempts`` times; a frame without an accepted find has
     no person (the body is interpolated there), and the window widens until the person
-    is found again. The person's mask keeps only the pixels within ``reach`` of the
-    frame's skeleton (``body_region``), so a neighbour touching the person stays scene.
+    is found again. The person's mask keeps only the pixels within ``limb`` of the
+    frame's bones and ``head`` of its face (``body_region``), so a neighbour touching the
+    person stays scene.
     """
     mp = import_mediapipe()
     s = settings or FollowSettings()
@@ -402,7 +406,8 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
                     soft = np.zeros((H, W), np.float32)
                     if res.segmentation_mask is not None and np.isfinite(length):
                         soft[y0:y1, x0:x1] = np.clip(res.segmentation_mask, 0.0, 1.0)
-                        soft[~(person.allowed & body_region(kp, (H, W), s.reach * length))] = 0.0
+                        body = body_region(kp, (H, W), s.limb * length, s.head * length)
+                        soft[~(person.allowed & body)] = 0.0
                     mask = clean_person_mask(soft > mask_threshold, kp)
                     colours = torso_colours(images[t], kp, mask)
                     why = person.rejects(kp, colours)
