@@ -218,6 +218,23 @@ def test_object_is_reported_lost_while_hidden():
     assert _iou(masks[6], gt[6]) > 0.8  # and found again after
 
 
+def test_resemblance_to_the_prompt_caps_confidence_on_pixels_that_are_not_its_colours():
+    """The tracker's confidence in a frame is capped by how much the found pixels look
+    like the prompt's object under the prompt's own colour model (never adapted): the
+    object itself scores about 1, a patch of the scene a drifting track could end on
+    scores near 0, half of each lies between."""
+    from cogs.preprocess.tracking import _Tracker
+
+    images, gt, person = _object_clip()
+    tracker = _Tracker(images, None, None, (person * 255).astype(np.uint8), None, 0.5, 0.1, 0.5, 4, prompts={0: gt[0]})
+    on_object = tracker.resemblance(5, gt[5])
+    scene = np.roll(gt[5], 40, axis=0) & ~gt[5] & ~person[5]
+    on_scene = tracker.resemblance(5, scene)
+    half = tracker.resemblance(5, gt[5] | np.roll(gt[5], 22, axis=1))
+    assert on_object > 0.9 and on_scene < 0.2 and on_scene < half < on_object, (on_object, half, on_scene)
+    assert tracker.resemblance(5, np.zeros_like(gt[5])) == 0.0
+
+
 def _square(H, W, cx, cy, half, angle_deg=0.0):
     yy, xx = np.mgrid[:H, :W]
     a = np.radians(angle_deg)

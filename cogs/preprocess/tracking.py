@@ -602,6 +602,20 @@ class _Tracker:
             self._scene_maps[key] = maps
         return self._scene_maps[key]
 
+    def resemblance(self, t: int, mask: np.ndarray) -> float:
+        """How much frame t's ``mask`` still looks like the prompt's object: its mean
+        probability under the prompt's own colour model (never adapted to later frames)
+        over the prompt's, clipped to [0, 1]. A track that drifted onto the scene or the
+        person through frames each a little like the last (the patch of floor a bottle
+        was lifted off, a shoe beside a ball) keeps its adapted model's trust but loses
+        this; the frame's confidence is capped by it."""
+        if not mask.any():
+            return 0.0
+        ys, xs = np.nonzero(mask)
+        y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+        score = float(self.base_model.prob(self.images[t, y0:y1, x0:x1])[mask[y0:y1, x0:x1]].mean())
+        return float(np.clip(score / max(self.ref_score, 1e-6), 0.0, 1.0))
+
     def _hands_mask(self, t: int) -> np.ndarray:
         if self.kp2d is None:
             return np.zeros(self.images.shape[1:3], bool)
@@ -653,7 +667,7 @@ class _Tracker:
                 st.pending = None
             if fill and not f.visible.any():
                 break
-            masks[t], conf[t], cues[t] = f.visible, f.confidence, f.cue
+            masks[t], conf[t], cues[t] = f.visible, min(f.confidence, self.resemblance(t, f.visible)), f.cue
             if f.visible.any():
                 model = self._update(st, t, direction, f, model)
             else:
