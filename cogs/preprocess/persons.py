@@ -218,7 +218,10 @@ def _extent(mask: np.ndarray, kp: np.ndarray) -> np.ndarray:
         yy, xx = np.nonzero(mask)
         xs += [xx.min(), xx.max() + 1]
         ys += [yy.min(), yy.max() + 1]
-    seen = kp[(kp[:, 2] > 0.5) & np.isfinite(kp).all(1), :2]
+    finite = np.isfinite(kp).all(1)
+    seen = kp[(kp[:, 2] > 0.5) & finite, :2]
+    if not len(seen) and not xs:
+        seen = kp[finite, :2]  # nothing sure: where the model guessed the body is
     xs += list(seen[:, 0])
     ys += list(seen[:, 1])
     return np.array([max(0.0, min(xs)), max(0.0, min(ys)), min(float(W), max(xs)), min(float(H), max(ys))])
@@ -407,7 +410,7 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
                     if res.segmentation_mask is not None and np.isfinite(length):
                         soft[y0:y1, x0:x1] = np.clip(res.segmentation_mask, 0.0, 1.0)
                         body = body_region(kp, (H, W), s.limb * length, s.head * length)
-                        soft[~(person.allowed & body)] = 0.0
+                        soft[~(body if shown else person.allowed & body)] = 0.0
                     mask = clean_person_mask(soft > mask_threshold, kp)
                     colours = torso_colours(images[t], kp, mask)
                     why = person.rejects(kp, colours)
