@@ -5,9 +5,8 @@
 The clips are the ones named in the shared data's README (fetched by the user from their
 public repositories; they are never part of this project): DIR holds ``juggle.mp4``,
 ``backpack.mp4``, ``bottle.webm``, ``guitar.webm``, ``loading/`` (the top-left 640x360
-quadrant of SLAHMR's composite ``loading.mp4`` without its top 24 rows, which hold the
-composite's "Input View" label, one PNG per frame: a label fixed on a panning view moves
-against the scene and was taken for the object) and
+quadrant of SLAHMR's composite ``loading.mp4``, one PNG per frame; it keeps the
+composite's "Input View" label, which a crop below it would take with the loader's head) and
 ``basketball_dribble.mp4``. A missing clip is skipped and reported as such.
 
 Each clip is preprocessed (``cogs preprocess``, in a subprocess, so a failure is the
@@ -42,7 +41,7 @@ CLIPS = {
     "backpack": ("backpack.mp4", ["--object-box", "0", "210", "125", "280", "275"]),
     "bottle": ("bottle.webm", ["--stride", "2", "--object-box", "0", "370", "925", "410", "1020"]),
     "guitar": ("guitar.webm", ["--stride", "2", "--object-box", "0", "270", "330", "810", "590"]),
-    "loading": ("loading", ["--object-box", "12", "280", "121", "415", "216", "--person-box", "0", "330", "66", "530", "336"]),
+    "loading": ("loading", ["--object-box", "12", "280", "145", "415", "240", "--person-box", "0", "330", "90", "530", "360"]),
 }
 
 
