@@ -58,6 +58,12 @@ class PersonTrack:
     kp3d: np.ndarray  # [T, 33, 3] metres, hip-centred, camera-aligned axes; NaN where undetected
     detected: np.ndarray  # [T] bool
 
+    @classmethod
+    def empty(cls, T: int, H: int, W: int) -> "PersonTrack":
+        """T frames of H x W with nobody found yet."""
+        nan = np.full((T, N_LANDMARKS, 3), np.nan, dtype=np.float32)
+        return cls(np.zeros((T, H, W), bool), np.zeros((T, H, W), np.uint8), nan, nan.copy(), np.zeros(T, bool))
+
     def arrays(self) -> dict[str, np.ndarray]:
         return {"masks": self.masks, "probs": self.probs, "kp2d": self.kp2d, "kp3d": self.kp3d, "detected": self.detected}
 
@@ -130,11 +136,8 @@ def detect_persons(images: np.ndarray, on_frame=None, mask_threshold: float = 0.
     """Run MediaPipe Pose over frames [T, H, W, 3] uint8 RGB (video mode)."""
     mp = import_mediapipe()
     T, H, W, _ = images.shape
-    masks = np.zeros((T, H, W), dtype=bool)
-    probs = np.zeros((T, H, W), dtype=np.uint8)
-    kp2d = np.full((T, N_LANDMARKS, 3), np.nan, dtype=np.float32)
-    kp3d = np.full((T, N_LANDMARKS, 3), np.nan, dtype=np.float32)
-    detected = np.zeros(T, dtype=bool)
+    track = PersonTrack.empty(T, H, W)
+    masks, probs, kp2d, kp3d, detected = track.masks, track.probs, track.kp2d, track.kp3d, track.detected
     with _quiet_native_logs():
         pose = mp.solutions.pose.Pose(
             static_image_mode=False,
@@ -165,7 +168,7 @@ def detect_persons(images: np.ndarray, on_frame=None, mask_threshold: float = 0.
                 on_frame(t + 1)
     finally:
         pose.close()
-    return PersonTrack(masks, probs, kp2d, kp3d, detected)
+    return track
 
 
 # Hand edges (wrist to pinky, index and thumb) drawn besides EDGES when bounding a body.
@@ -368,11 +371,8 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
     mp = import_mediapipe()
     s = settings or FollowSettings()
     T, H, W, _ = images.shape
-    masks = np.zeros((T, H, W), dtype=bool)
-    probs = np.zeros((T, H, W), dtype=np.uint8)
-    kp2d = np.full((T, N_LANDMARKS, 3), np.nan, dtype=np.float32)
-    kp3d = np.full((T, N_LANDMARKS, 3), np.nan, dtype=np.float32)
-    detected = np.zeros(T, dtype=bool)
+    track = PersonTrack.empty(T, H, W)
+    masks, probs, kp2d, kp3d, detected = track.masks, track.probs, track.kp2d, track.kp3d, track.detected
     with _quiet_native_logs():
         # Static mode: each window is a new image (video mode's own tracking assumes the
         # whole frame, which moves here with the window).
@@ -435,7 +435,7 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
                     on_frame(done)
     finally:
         pose.close()
-    return PersonTrack(masks, probs, kp2d, kp3d, detected)
+    return track
 
 
 def refine_masks_sam2(images: np.ndarray, track: PersonTrack, checkpoint: Path, config: str, on_frame=None) -> np.ndarray:
