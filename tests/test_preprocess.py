@@ -1060,3 +1060,13 @@ def test_object_probability_is_damped_on_the_head_unless_the_object_was_there():
     prob = np.ones((100, 100))
     _suppress_head(prob, kp, np.array([50.0, 41.0]))  # last seen on the head: untouched
     assert prob.min() == 1.0
+
+
+def test_a_prompt_too_small_for_the_tracker_is_warned_about_naming_the_option_and_the_remedy():
+    from cogs.preprocess.prompts import MIN_PROMPT_PIXELS, parse_prompts, small_prompt_warning
+
+    prompt = parse_prompts((0, 370, 925, 410, 1020), None, None)[0][0]
+    assert small_prompt_warning(prompt, MIN_PROMPT_PIXELS, (216, 384), 384) is None
+    text = small_prompt_warning(prompt, 171, (216, 384), 384)
+    assert text.startswith("--object-box 0 370 925 410 1020: the object covers only 171 pixels of frame 0 at 216x384")
+    assert "--max-side (now 384)" in text

@@ -457,7 +457,7 @@ class _Runner:
             conf = masks.reshape(T, -1).any(1).astype(np.float64)
             update(T)
         else:
-            from cogs.preprocess.prompts import box_mask
+            from cogs.preprocess.prompts import box_mask, small_prompt_warning
 
             scaled = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.positives]
             scaled_neg = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.negatives]
@@ -478,6 +478,9 @@ class _Runner:
                         prompts[k] &= ~negative[k]
                     if not prompts[k].any():
                         raise UserError(f"{p.option} {p.text}: GrabCut found no object in the box on frame {k}")
+                    small = small_prompt_warning(p, int(prompts[k].sum()), (W, H), cfg.max_side)
+                    if small:
+                        log.warning("%s", small)
                 masks, conf = O.propagate_masks(images, list(prompts.values()), list(prompts), human_probs=pe["probs"], kp2d=pe["kp2d"],
                                                 negatives=negative, cues=cues, sources=sources, on_frame=lambda n: update(n))
         if not masks.any():

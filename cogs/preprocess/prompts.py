@@ -175,6 +175,24 @@ def check_against_frames(prompts: list[BoxPrompt], source_size: tuple[int, int],
             raise UserError(f"{p.option} {p.text} covers less than 3x3 pixels of the frame")
 
 
+# The fewest pixels an object prompt's mask should cover for the classical tracker. Set on
+# the development clips at --max-side 384: a bottle of 171 pixels was lost once lifted
+# (its prompt's colour model held as much floor as bottle); balls of 407 and 626 pixels
+# were followed. A warning, not a refusal: only the size of the frames can fix it.
+MIN_PROMPT_PIXELS = 300
+
+
+def small_prompt_warning(prompt: BoxPrompt, pixels: int, size: tuple[int, int], max_side: int) -> str | None:
+    """The warning for an object prompt whose mask covers only ``pixels`` pixels of its
+    frame at the processed ``size`` (width, height), or None when it is large enough."""
+    if pixels >= MIN_PROMPT_PIXELS:
+        return None
+    return (f"{prompt.option} {prompt.text}: the object covers only {pixels} pixels of frame {prompt.frame} at "
+            f"{size[0]}x{size[1]}; the classical tracker needs about {MIN_PROMPT_PIXELS} to tell it from what is around "
+            f"it and may lose it: a larger --max-side (now {max_side}) gives it more (docs/preprocess.md, "
+            "'The development clips')")
+
+
 def box_mask(box: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """[H, W] bool: the pixels whose centres lie in ``box`` (x0, y0, x1, y1, processed pixels)."""
     H, W = shape
