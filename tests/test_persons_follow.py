@@ -108,3 +108,55 @@ def test_a_person_box_off_the_frames_is_refused_before_any_work():
         check_against_frames([prompt], (160, 120), 3)
     with pytest.raises(UserError, match="--person-box 500 10 600 60 lies outside the 160x120 frame"):
         check_against_frames([parse_person_box((500, 10, 600, 60))], (160, 120), 3)
+
+
+@pytest.fixture(scope="module")
+def two_alike(default_scene_dir):
+    """The benchmark's person, and the same person 50 frames later pasted 80 px to the
+    right: two people who look alike and both look like people to MediaPipe."""
+    pytest.importorskip("mediapipe", reason="mediapipe is in the optional `preprocess` extra")
+    from PIL import Image
+
+    def load(t):
+        return (np.asarray(Image.open(default_scene_dir / "images" / f"{t:06d}.png").convert("RGB")),
+                np.asarray(Image.open(default_scene_dir / "masks" / "human" / f"{t:06d}.png")) > 127)
+
+    frames = range(0, 48, 4)
+    images, first, second = [], [], []
+    for t in frames:
+        im, m = load(t)
+        later, m2 = load(t + 50)
+        W = im.shape[1]
+        pasted = np.zeros_like(m2)
+        pasted[:, 80:] = m2[:, : W - 80]
+        out = im.copy()
+        out[pasted] = np.roll(later, 80, axis=1)[pasted]
+        images.append(out)
+        first.append(m & ~pasted)
+        second.append(pasted)
+    return np.stack(images), np.stack(first), np.stack(second)
+
+
+def test_with_several_people_and_no_box_one_is_chosen_and_followed_alone(two_alike, default_scene_dir):
+    from PIL import Image
+
+    from cogs.preprocess.persons import choose_person, follow_person
+
+    images, first, second = two_alike
+    # One person in view: no choice to make (the whole-frame path runs unchanged).
+    alone = np.stack([np.asarray(Image.open(default_scene_dir / "images" / f"{t:06d}.png").convert("RGB")) for t in range(0, 48, 4)])
+    assert choose_person(alone) is None
+    # Without an object box: the person nearest the frame's centre (the first, here).
+    t, box = choose_person(images)
+    cx = (box[0] + box[2]) / 2
+    assert first[t][:, int(box[0]):int(box[2]) + 1].any() and not second[t][:, int(cx)].any()
+    # With an object box held against the second person (at the middle of their mask), that person.
+    y, x = np.argwhere(second[t]).mean(0)
+    near = (t, np.array([x - 5, y - 5, x + 5, y + 5], float))
+    t2, box2 = choose_person(images, near)
+    assert second[t2][int((box2[1] + box2[3]) / 2), :][int(box2[0]):int(box2[2]) + 1].any()
+    assert not first[t2][:, int((box2[0] + box2[2]) / 2)].any()
+    track = follow_person(images, t, box)
+    for k in np.flatnonzero(track.detected):
+        assert _share(track.masks[k], second[k]) < 0.02, f"frame {k}: the mask took the other person"
+    assert track.detected.sum() >= 10

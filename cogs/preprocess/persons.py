@@ -343,6 +343,98 @@ class _Followed:
             self.allowed = cv2.dilate(self.allowed.astype(np.uint8), _disc(self.s.reach * self.torso[1])) > 0
 
 
+def _run_pose(pose, image: np.ndarray, window, visible: np.ndarray):
+    """MediaPipe Pose (a ``solutions.pose.Pose``) on ``image[window]`` (x0, y0, x1, y1) with
+    the pixels outside ``visible`` [H, W] painted grey -> (kp2d [33, 3] in the frame's
+    pixels, kp3d [33, 3] or None, soft mask [h, w] of the window or None), or None when
+    nobody is found."""
+    x0, y0, x1, y1 = window
+    crop = image[y0:y1, x0:x1].copy()
+    crop[~visible[y0:y1, x0:x1]] = 127
+    with _quiet_native_logs(), warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*GetPrototype.*", category=UserWarning)
+        res = pose.process(np.ascontiguousarray(crop))
+    if res.pose_landmarks is None:
+        return None
+    h, w = crop.shape[:2]
+    kp = np.array([(p.x * w + x0, p.y * h + y0, p.visibility) for p in res.pose_landmarks.landmark], np.float32)
+    kp3 = None if res.pose_world_landmarks is None else np.array([(p.x, p.y, p.z) for p in res.pose_world_landmarks.landmark], np.float32)
+    soft = None if res.segmentation_mask is None else np.clip(res.segmentation_mask, 0.0, 1.0)
+    return kp, kp3, soft
+
+
+def _static_pose(mp):
+    with _quiet_native_logs():
+        # Static mode: each image stands alone (video mode's own tracking assumes the
+        # whole frame, which moves here with a window).
+        return mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=True,
+                                      min_detection_confidence=0.5)
+
+
+def find_people(images: np.ndarray, frames, most: int = 3) -> dict[int, list[np.ndarray]]:
+    """The 2D keypoints [33, 3] of each person MediaPipe finds on each of ``frames``: the
+    whole frame is asked, then asked again with every person found so far painted grey
+    (within 0.6 torso lengths of their skeleton), up to ``most`` people. A find on a
+    painted person's place or with a torso under a third of the first one's is no one."""
+    mp = import_mediapipe()
+    pose = _static_pose(mp)
+    H, W = images.shape[1:3]
+    out: dict[int, list[np.ndarray]] = {}
+    try:
+        for t in frames:
+            visible = np.ones((H, W), bool)
+            people: list[np.ndarray] = []
+            for _ in range(most):
+                found = _run_pose(pose, images[t], (0, 0, W, H), visible)
+                if found is None:
+                    break
+                kp = found[0]
+                length = _torso_length(kp)
+                if not (np.isfinite(length) and length > 1) or (people and length < _torso_length(people[0]) / 3):
+                    break
+                cx, cy = np.clip(kp[[11, 12, 23, 24], :2].mean(0), 0, [W - 1, H - 1]).astype(int)
+                if not visible[cy, cx]:
+                    break  # a painted person found again
+                people.append(kp)
+                visible &= ~body_region(kp, (H, W), 0.6 * length)
+            out[int(t)] = people
+    finally:
+        pose.close()
+    return out
+
+
+def choose_person(images: np.ndarray, near: tuple[int, np.ndarray] | None = None, samples: int = 5) -> tuple[int, np.ndarray] | None:
+    """(frame, box x0 y0 x1 y1) of the person to follow when several are in view, or None
+    when at most one person is seen. ``samples`` frames spread over the clip are searched
+    (``find_people``); people are in view when two or more are found on most of them
+    (MediaPipe sometimes sees a person in a chair or a screen: on the guitar development
+    clip, in 2 of 5 frames). With ``near`` = (frame, object box), the person followed is
+    the one whose hands are nearest the box's centre on that frame: the person handling
+    the object is usually the clip's subject (not always: on the loading clip the man
+    standing by touches the box on the prompt's frame). Without it, the one whose torso is
+    nearest the frame's centre on the first frame with several people. Either way one
+    person is followed through the clip; the others are scene."""
+    T, H, W, _ = images.shape
+    frames = sorted({int(round(x)) for x in np.linspace(0, T - 1, min(T, samples))})
+    seen = find_people(images, sorted(set(frames) | ({near[0]} if near else set())))
+    several = [t for t in frames if len(seen[t]) >= 2]
+    if 2 * len(several) <= len(frames):
+        return None
+    if near is not None and seen[near[0]]:
+        t, box = near
+        target = np.array([(box[0] + box[2]) / 2, (box[1] + box[3]) / 2])
+
+        def distance(kp):  # hands hidden by the object are still placed where they must be
+            return float(np.linalg.norm(kp[15:23, :2] - target, axis=1).min())
+    else:
+        t, target = several[0], np.array([W / 2, H / 2])
+
+        def distance(kp):
+            return float(np.linalg.norm(kp[[11, 12, 23, 24], :2].mean(0) - target))
+    kp = min(seen[t], key=distance)
+    return t, _grow(_extent(np.zeros((H, W), bool), kp), 0.05, (H, W))
+
+
 def _disc(radius: float) -> np.ndarray:
     import cv2
 
@@ -373,11 +465,7 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
     T, H, W, _ = images.shape
     track = PersonTrack.empty(T, H, W)
     masks, probs, kp2d, kp3d, detected = track.masks, track.probs, track.kp2d, track.kp3d, track.detected
-    with _quiet_native_logs():
-        # Static mode: each window is a new image (video mode's own tracking assumes the
-        # whole frame, which moves here with the window).
-        pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, enable_segmentation=True,
-                                      min_detection_confidence=0.5)
+    pose = _static_pose(mp)
     done = 0
     try:
         for order in (range(frame, T), range(frame - 1, -1, -1)):
@@ -390,12 +478,8 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
                 wide, shown = 1, False
                 for _ in range(s.attempts + 2):
                     x0, y0, x1, y1 = _grow(person.last, s.context * wide * (1 + person.misses), (H, W)).round().astype(int)
-                    window = images[t, y0:y1, x0:x1].copy()
-                    window[~visible[y0:y1, x0:x1]] = 127
-                    with _quiet_native_logs(), warnings.catch_warnings():
-                        warnings.filterwarnings("ignore", message=".*GetPrototype.*", category=UserWarning)
-                        res = pose.process(np.ascontiguousarray(window))
-                    if res.pose_landmarks is None:
+                    res = _run_pose(pose, images[t], (x0, y0, x1, y1), visible)
+                    if res is None:
                         if wide == 1:
                             wide = 3
                             continue
@@ -403,12 +487,11 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
                             shown, visible = True, ~set_aside
                             continue
                         break
-                    h, w = window.shape[:2]
-                    kp = np.array([(p.x * w + x0, p.y * h + y0, p.visibility) for p in res.pose_landmarks.landmark], np.float32)
+                    kp, kp3, window_soft = res
                     length = _torso_length(kp)
                     soft = np.zeros((H, W), np.float32)
-                    if res.segmentation_mask is not None and np.isfinite(length):
-                        soft[y0:y1, x0:x1] = np.clip(res.segmentation_mask, 0.0, 1.0)
+                    if window_soft is not None and np.isfinite(length):
+                        soft[y0:y1, x0:x1] = window_soft
                         body = body_region(kp, (H, W), s.limb * length, s.head * length)
                         soft[~(body if shown else person.allowed & body)] = 0.0
                     mask = clean_person_mask(soft > mask_threshold, kp)
@@ -417,8 +500,8 @@ def follow_person(images: np.ndarray, frame: int, box, on_frame=None, mask_thres
                     if why is None:
                         detected[t] = True
                         kp2d[t] = kp
-                        if res.pose_world_landmarks is not None:
-                            kp3d[t] = [(p.x, p.y, p.z) for p in res.pose_world_landmarks.landmark]
+                        if kp3 is not None:
+                            kp3d[t] = kp3
                         probs[t] = (soft * 255 + 0.5).astype(np.uint8)
                         masks[t] = mask
                         person.found(kp, mask, colours)

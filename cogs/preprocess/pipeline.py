@@ -318,7 +318,8 @@ class _Runner:
             person_params = {"threshold": cfg.person_threshold, "refine": cfg.refine_person_masks, "sam2": str(cfg.sam2_checkpoint)}
             if self.person:  # only then, so that caches made before the option stay valid
                 person_params["person_box"] = self.person.record()
-            pe, _ = self._step(ui, 2, "persons", person_params, ["frames"], lambda lb: self._persons(lb, ui, images))
+            pe, pmeta = self._step(ui, 2, "persons", person_params, ["frames"], lambda lb: self._persons(lb, ui, images))
+            self.person_choice = pmeta.get("stats", {}).get("followed")  # chosen among several people, or None
             if not pe["detected"].any():
                 raise UserError(f"no person detected in any of the {T} frames of {src}")
 
@@ -406,19 +407,33 @@ class _Runner:
         return self._ui.task(label, total)
 
     def _persons(self, label, ui, images):
-        from cogs.preprocess.persons import detect_persons, refine_masks_sam2
+        from cogs.preprocess.objects import scale_box
+        from cogs.preprocess.persons import choose_person, detect_persons, follow_person, refine_masks_sam2
 
         T = len(images)
         update = ui.task(label, T)
+        choice = None
         if self.person is not None:
-            from cogs.preprocess.objects import scale_box
-            from cogs.preprocess.persons import follow_person
-
             box = scale_box(self.person.box, self.source_size, (images.shape[2], images.shape[1]))
             track = follow_person(images, self.person.frame, box, on_frame=lambda k: update(k),
                                   mask_threshold=self.cfg.person_threshold)
         else:
-            track = detect_persons(images, on_frame=lambda k: update(k), mask_threshold=self.cfg.person_threshold)
+            near = None
+            if self.positives:  # the person handling the object is the subject
+                p0 = self.positives[0]
+                near = (p0.frame, scale_box(p0.box, self.source_size, (images.shape[2], images.shape[1])))
+            choice = choose_person(images, near)
+            if choice is None:  # one person in view: MediaPipe's own video-mode tracking
+                track = detect_persons(images, on_frame=lambda k: update(k), mask_threshold=self.cfg.person_threshold)
+            else:
+                k, box = choice
+                sx, sy = self.source_size[0] / images.shape[2], self.source_size[1] / images.shape[1]
+                followed = [k, *(round(float(v), 1) for v in box * [sx, sy, sx, sy])]
+                log.warning("several people in view: following the one %s, in the box %s on frame %d "
+                            "(pixels of the input video); name another with --person-box FRAME X0 Y0 X1 Y1",
+                            "nearest the object's box" if near else "nearest the centre",
+                            " ".join(f"{v:g}" for v in followed[1:]), k)
+                track = follow_person(images, k, box, on_frame=lambda n: update(n), mask_threshold=self.cfg.person_threshold)
         if self.cfg.refine_person_masks and self.cfg.sam2_checkpoint is None:
             import cv2
 
@@ -439,6 +454,8 @@ class _Runner:
         n = int(track.detected.sum())
         missing = [i for i in range(T) if not track.detected[i]]
         meta = {"summary": f"person in {n}/{T} frames", "stats": {"detected": n, "missing_frames": missing[:50]}}
+        if choice is not None:
+            meta["stats"]["followed"] = followed
         if missing and n:
             log.warning("no person found in %d frame(s): %s%s; the body there is interpolated",
                         len(missing), missing[:10], "..." if len(missing) > 10 else "")
@@ -681,6 +698,8 @@ class _Runner:
         }
         if self.person is not None:  # in pixels of the input video, a frame among the kept ones
             source["person_prompt"] = self.person.record()
+        elif self.person_choice:  # several people in view, none named: the one followed
+            source["person_followed"] = self.person_choice
         if self.positives:  # in pixels of the input video, frames among the kept ones
             source["object_prompts"] = {"boxes": [p.record() for p in self.positives],
                                         "negative_boxes": [n.record() for n in self.negatives]}
