@@ -67,8 +67,9 @@ class Preprocess:
     person_box: Annotated[tuple[float, ...] | None, tyro.conf.arg(metavar="[FRAME] X0 Y0 X1 Y1")] = None
     """The person to reconstruct when several are in view: a box around them, in pixels of
     the input video, on frame FRAME (default 0). That person alone is followed from frame
-    to frame; the others become part of the scene. Without it MediaPipe's choice on the
-    whole frame is taken (right for one person in view)."""
+    to frame; the others become part of the scene. Without it, when several people are in
+    view, the one whose hands are nearest the first --object-box (else the one nearest
+    the centre) is followed, with a warning naming the box."""
 
     object_masks: Path | None = None
     """Folder of ready-made object masks (one image per frame, sorted by name; white =
