@@ -82,7 +82,9 @@ def test_a_failed_run_leaves_only_its_cache_says_where_and_resumes_from_it(no_pe
     with pytest.raises(UserError) as e:
         preprocess(no_person, out)
     partial = tmp_path / "scene.partial"
-    assert str(e.value) == (f"no person detected in any of the 3 frames of {no_person}\nnothing was written to {out}; "
+    assert str(e.value) == (f"no person detected in any of the 3 frames of {no_person} (MediaPipe finds a person by the face: "
+                            "the head must be in view, and large enough at --max-side 128, in the frames)"
+                            f"\nnothing was written to {out}; "
                             f"the 2 step(s) finished so far are cached in {partial / '.cache'}: run the same command "
                             f"again to resume from them (or delete {partial})")
     assert not out.exists()

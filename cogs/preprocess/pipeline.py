@@ -321,7 +321,9 @@ class _Runner:
             pe, pmeta = self._step(ui, 2, "persons", person_params, ["frames"], lambda lb: self._persons(lb, ui, images))
             self.person_choice = pmeta.get("stats", {}).get("followed")  # chosen among several people, or None
             if not pe["detected"].any():
-                raise UserError(f"no person detected in any of the {T} frames of {src}")
+                raise UserError(f"no person detected in any of the {T} frames of {src} (MediaPipe finds a person by the "
+                                "face: the head must be in view, and large enough at --max-side "
+                                f"{cfg.max_side}, in the frames)")
 
             has_object = bool(self.positives) or cfg.object_masks is not None
             ob_params = {**self._prompt_params(), "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint),
