@@ -414,23 +414,23 @@ class _Runner:
 
         T = len(images)
         update = ui.task(label, T)
+        size = (images.shape[2], images.shape[1])
         choice = None
         if self.person is not None:
-            box = scale_box(self.person.box, self.source_size, (images.shape[2], images.shape[1]))
+            box = scale_box(self.person.box, self.source_size, size)
             track = follow_person(images, self.person.frame, box, on_frame=lambda k: update(k),
                                   mask_threshold=self.cfg.person_threshold)
         else:
             near = None
             if self.positives:  # the person handling the object is the subject
                 p0 = self.positives[0]
-                near = (p0.frame, scale_box(p0.box, self.source_size, (images.shape[2], images.shape[1])))
+                near = (p0.frame, scale_box(p0.box, self.source_size, size))
             choice = choose_person(images, near)
             if choice is None:  # one person in view: MediaPipe's own video-mode tracking
                 track = detect_persons(images, on_frame=lambda k: update(k), mask_threshold=self.cfg.person_threshold)
             else:
                 k, box = choice
-                sx, sy = self.source_size[0] / images.shape[2], self.source_size[1] / images.shape[1]
-                followed = [k, *(round(float(v), 1) for v in box * [sx, sy, sx, sy])]
+                followed = [k, *(round(float(v), 1) for v in scale_box(box, size, self.source_size))]
                 log.warning("several people in view: following the one %s, in the box %s on frame %d "
                             "(pixels of the input video); name another with --person-box FRAME X0 Y0 X1 Y1",
                             "nearest the object's box" if near else "nearest the centre",
