@@ -60,6 +60,9 @@ def report(warm: bool = False) -> int:
             t0 = time.perf_counter()
             warmup()
             rows.append(("CPU rasterizer kernels", f"compiled/loaded in {time.perf_counter() - t0:.1f} s"))
+        from cogs.ssim import warmup as ssim_warmup
+
+        rows.append(("CPU SSIM kernels", f"compiled/loaded in {ssim_warmup():.1f} s"))
     width = max(len(k) for k, _ in rows)
     for k, v in rows:
         console.print(f"{k:<{width}}  {v}", highlight=False)

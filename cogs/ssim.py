@@ -7,6 +7,10 @@ Gaussian window (sigma 1.5, truncated at 3.5 sigma and renormalised), statistics
 channel on the 2-D image, and the SSIM map averaged over the *valid* region only (5 pixels
 are dropped on every border, where the window would leave the image). The test suite checks
 it against scikit-image to 1e-4.
+
+`ssim` is what the training's D-SSIM loss calls: on CPU float32 images whose second
+argument needs no gradient it runs the fused numba kernels of `cogs.ssim_cpu` (the same
+value and gradient, several times faster at training sizes), elsewhere `ssim_torch`.
 """
 
 from __future__ import annotations
@@ -82,3 +86,39 @@ def ssim_torch(pred: Tensor, gt: Tensor, data_range: float = 1.0) -> Tensor:
     # the per-channel means averaged.
     value = s_map.mean(dim=(1, 2, 3))
     return value[0] if single else value
+
+
+def ssim(pred: Tensor, gt: Tensor) -> Tensor:
+    """Differentiable mean SSIM of two [H, W, C] images (gradient to `pred`), as
+    `ssim_torch`: fused CPU kernels for float32 host tensors with a constant `gt`."""
+    fused = (pred.ndim == 3 and pred.shape == gt.shape and pred.device.type == "cpu" and gt.device.type == "cpu"
+             and pred.dtype == torch.float32 and gt.dtype == torch.float32 and not gt.requires_grad
+             and min(pred.shape[0], pred.shape[1]) >= SSIM_WINDOW_SIZE)
+    if not fused:
+        return ssim_torch(pred, gt)
+    from cogs.ssim_cpu import FusedSSIM
+
+    return FusedSSIM.apply(pred, gt, _window32(), SSIM_K1**2, SSIM_K2**2)
+
+
+_WINDOW32 = None
+
+
+def _window32():
+    global _WINDOW32
+    if _WINDOW32 is None:
+        _WINDOW32 = gaussian_window_1d(dtype=torch.float64, device=torch.device("cpu")).float().numpy()
+    return _WINDOW32
+
+
+def warmup() -> float:
+    """Compile (or load from numba's cache) the fused SSIM kernels on a tiny image, forward
+    and backward, so that JIT time never lands inside a training loop. Returns seconds."""
+    import time
+
+    t0 = time.perf_counter()
+    cpu = torch.device("cpu")
+    g = torch.Generator(device=cpu).manual_seed(0)
+    pred = torch.rand(SSIM_WINDOW_SIZE + 1, SSIM_WINDOW_SIZE + 2, 3, generator=g, device=cpu).requires_grad_(True)
+    ssim(pred, torch.rand(pred.shape, generator=g, device=cpu)).backward()
+    return time.perf_counter() - t0

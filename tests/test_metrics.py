@@ -21,6 +21,7 @@ from cogs.eval.metrics import (
     ssim,
     ssim_torch,
 )
+from cogs.ssim import ssim as loss_ssim
 
 skimage_metrics = pytest.importorskip("skimage.metrics")
 
@@ -111,6 +112,49 @@ def test_d_ssim_loss_decreases_under_gradient_descent():
         loss.backward()
         opt.step()
     assert float(1 - ssim_torch(pred.detach(), gt)) < 0.5 * first
+
+
+@pytest.mark.parametrize("shape", [(11, 11, 3), (13, 40, 3), (64, 48, 1), (37, 29, 7)])
+def test_fused_ssim_matches_the_torch_reference_in_value_and_gradient(shape):
+    g = torch.Generator().manual_seed(sum(shape))
+    gt = torch.rand(*shape, generator=g)
+    gt[: shape[0] // 2] = gt[: shape[0] // 2].mean()  # flat half: small variances, where SSIM is steepest
+    pred = (gt + 0.1 * torch.randn(*shape, generator=g)).clamp(0, 1).requires_grad_(True)
+    p64 = pred.detach().double().requires_grad_(True)  # the reference in float64: both float32 paths round
+    ref = ssim_torch(p64, gt.double())
+    (g_ref,) = torch.autograd.grad(ref, p64)
+    fused = loss_ssim(pred, gt)
+    assert fused.grad_fn is not None and "Fused" in type(fused.grad_fn).__name__  # the kernels, not the fallback
+    (g_fused,) = torch.autograd.grad(3.0 * fused, pred)  # an upstream gradient other than 1
+    assert float(fused.detach()) == pytest.approx(float(ref), abs=1e-5)
+    assert float((g_fused.double() - 3.0 * g_ref).abs().max()) <= 1e-4 * 3.0 * float(g_ref.abs().max())
+
+
+def test_fused_ssim_takes_crops_of_larger_images_and_its_loss_descends():
+    g = torch.Generator().manual_seed(3)
+    gt = torch.rand(40, 50, 3, generator=g)
+    full = torch.full_like(gt, 0.5).requires_grad_(True)
+    opt = torch.optim.Adam([full], lr=0.05)
+    first = None
+    for _ in range(30):
+        loss = 1 - loss_ssim(full[5:35, 10:45], gt[5:35, 10:45])  # non-contiguous views, as the objectives' crops
+        first = float(loss.detach()) if first is None else first
+        opt.zero_grad()
+        loss.backward()
+        assert torch.all(full.grad[:5] == 0) and torch.all(full.grad[:, :10] == 0)  # nothing outside the crop
+        opt.step()
+    assert float(1 - ssim_torch(full.detach()[5:35, 10:45], gt[5:35, 10:45])) < 0.5 * first
+
+
+def test_ssim_falls_back_to_the_reference_where_the_fused_kernels_do_not_apply():
+    g = torch.Generator().manual_seed(4)
+    a = torch.rand(20, 20, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    b = torch.rand(20, 20, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    value = loss_ssim(a, b)  # float64, and the second image needs a gradient too
+    assert value.dtype == torch.float64
+    ga, gb = torch.autograd.grad(value, (a, b))
+    ra, rb = torch.autograd.grad(ssim_torch(a, b), (a, b))
+    assert torch.equal(ga, ra) and torch.equal(gb, rb)
 
 
 def test_ssim_rejects_images_smaller_than_the_window():

@@ -6,7 +6,7 @@ Layout and ordering (shared with the torch reference so results match):
   :func:`cogs.render.projection.tile_ranges`, in float32) in a global front-to-back order
   (radix sort of depths, stable like ``torch.argsort(stable=True)``), so each tile's list
   ``ids[offsets[t]:offsets[t+1]]`` is already depth sorted.
-* Tiles are spread over a small thread pool (:mod:`cogs.render._threads`; nogil kernels,
+* Tiles are spread over a small thread pool (:mod:`cogs.parallel`; nogil kernels,
   no spinning workers): a tile owns its pixels and its slice of the intersection list, so
   there are no write races and no atomics.
 * Inside a tile the loop is Gaussian-major and SIMD across pixels. A tile's state lives in
@@ -37,7 +37,7 @@ import math
 import numpy as np
 from numba import njit
 
-from cogs.render._threads import parallel_for
+from cogs.parallel import parallel_for
 
 TILE = 16
 TILE_PIX = TILE * TILE

@@ -22,7 +22,7 @@ import torch
 from numba import njit
 from torch import Tensor
 
-from cogs.render._threads import parallel_for
+from cogs.parallel import parallel_for
 from cogs.render.projection import EPS2D, Projected, _MAX_RADIUS
 
 _QUAT_EPS = 1e-12  # as cogs.geometry.rotations.quat_normalize

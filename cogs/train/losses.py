@@ -12,7 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from cogs.ssim import ssim_torch
+from cogs.ssim import ssim
 
 _EPS = 1e-6
 
@@ -26,7 +26,7 @@ def l1(pred: Tensor, target: Tensor, mask: Tensor | None = None) -> Tensor:
 
 def dssim(pred: Tensor, target: Tensor) -> Tensor:
     """D-SSIM as 3DGS uses it: 1 - SSIM (11x11 Gaussian window, sigma 1.5)."""
-    return 1.0 - ssim_torch(pred, target)
+    return 1.0 - ssim(pred, target)
 
 
 def photometric(pred: Tensor, target: Tensor, w_l1: float, w_dssim: float) -> Tensor:

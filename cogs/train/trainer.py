@@ -90,8 +90,10 @@ class Trainer:
         self._nonfinite = torch.zeros((), dtype=torch.bool, device=self.device)
         self.out.mkdir(parents=True, exist_ok=True)
         from cogs.render import warmup
+        from cogs.ssim import warmup as ssim_warmup
 
         warmup()
+        ssim_warmup()
         if resume:
             self._resume(checkpoint)
         else:

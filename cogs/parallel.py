@@ -34,7 +34,7 @@ def _executor(n_threads: int) -> ThreadPoolExecutor:
         if _pool is None or _pool_key != key:
             if _pool is not None and _pool_key[0] == key[0]:
                 _pool.shutdown(wait=False)
-            _pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="cogs-render")
+            _pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="cogs-kernels")
             _pool_key = key
         return _pool
 
