@@ -357,13 +357,15 @@ def test_held_out_interpolation_weights_reproduce_cubic_motion():
 
 
 def _jittered_human(body_model, T: int = 40, jitter: float = 0.03, seed: int = 0, speed: float = 0.15,
-                    input_weight: float = 0.0):
+                    input_weight: float = 0.0, adaptive: bool = False, every: int = 6):
     """A human branch whose input poses are a sinusoidal motion (`speed` radians of phase
     per frame) plus per-frame jitter on the refined bones; the training frames' per-frame
-    residuals hold exactly minus that jitter (what an ideal fit finds). Every 6th frame is
-    held out. Returns (branch, true pose, held-out frames)."""
+    residuals hold exactly minus that jitter (what an ideal fit finds). Every `every`-th
+    frame is held out. Held-out frames keep the fixed share `input_weight` of their input's
+    detail, or the clip-decided one with `adaptive`. Returns (branch, true pose, held-out
+    frames)."""
     cfg = HumanConfig(n_gaussians=500, triplane_resolution=8, triplane_channels=4, per_frame_pose=True,
-                      held_out_input_weight=input_weight)
+                      held_out_input_weight=input_weight, held_out_adaptive=adaptive)
     sd = sample_human_seed(body_model, None, cfg, seed=0)
     g = torch.Generator().manual_seed(seed)
     major = torch.tensor([body_model.bone_index(b) for b in body_model.major_bones])
@@ -373,7 +375,7 @@ def _jittered_human(body_model, T: int = 40, jitter: float = 0.03, seed: int = 0
     true[:, major] = 0.3 * torch.sin(speed * t + phase)
     noisy = true.clone()
     noisy[:, major] += jitter * torch.randn(T, len(major), 3, generator=g)
-    test = list(range(0, T, 6))
+    test = list(range(0, T, every))
     train = [k for k in range(T) if k not in test]
     h = HumanBranch(body_model, body_model.default_shape, sd, noisy, torch.zeros(T, 3), cfg, train_frames=train)
     with torch.no_grad():
@@ -414,6 +416,66 @@ def test_held_out_pose_keeps_a_share_of_its_own_inputs_motion(body_model):
     # and where the input only jitters, the neighbours alone are the better guess
     slow = {w: _held_out_error(*_jittered_human(body_model, input_weight=w)) for w in (0.0, 0.3)}
     assert slow[0.0] < slow[0.3]
+
+
+def test_adaptive_held_out_share_follows_the_clips_own_noise(body_model):
+    """The clip decides the share: where the input only jitters (slow motion), it keeps
+    little of it, well below the fixed share's error; where the motion is too fast for the
+    interpolation and the jitter small, it keeps far more of the frame's own input; without
+    jitter it is the frame's own input exactly."""
+    slow = {k: _held_out_error(*_jittered_human(body_model, **kw))
+            for k, kw in {"adaptive": {"adaptive": True}, "fixed": {"input_weight": 0.3}}.items()}
+    assert slow["adaptive"] < 0.25 * slow["fixed"]
+    fast = {k: _held_out_error(*_jittered_human(body_model, jitter=0.003, speed=0.9, **kw))
+            for k, kw in {"adaptive": {"adaptive": True}, "fixed": {"input_weight": 0.3}}.items()}
+    assert fast["adaptive"] < 0.7 * fast["fixed"]
+    h, true, test = _jittered_human(body_model, jitter=0.0, speed=0.9, adaptive=True)
+    for t in test[1:]:
+        torch.testing.assert_close(h.frame_pose(t)[0], h.base_pose[t : t + 1], atol=1e-5, rtol=0)
+
+
+def test_adaptive_held_out_share_never_falls_below_the_fixed_one(body_model):
+    """`held_out_input_weight` is the adaptive share's floor: a jittering slow input keeps
+    exactly it; a fast, clean one keeps more on some bone."""
+    from cogs.branches.human import _detail, _lagrange_neighbours
+    from cogs.geometry.rotations import axis_angle_to_quat, quat_sign_continuous
+
+    for speed, jitter in ((0.15, 0.03), (0.9, 0.003)):
+        h, _, test = _jittered_human(body_model, jitter=jitter, speed=speed, input_weight=0.3, adaptive=True)
+        shares = []
+        for t in test[1:]:
+            nb = _lagrange_neighbours(t, h._trained, h.cfg.held_out_neighbours, h.cfg.held_out_max_gap)
+            d, d_t = _detail(quat_sign_continuous(axis_angle_to_quat(h.base_pose)), h.base_transl, t, nb)
+            w, w_t = h._input_shares(d, d_t)
+            shares.append(w[h.refined_bones])
+            assert float(w.min()) >= 0.3 - 1e-6 and float(w_t) >= 0.3 - 1e-6
+        assert (float(torch.stack(shares).max()) > 0.5) == (speed > 0.5)
+
+
+def test_adaptive_held_out_noise_is_recomputed_when_the_fit_changes(body_model):
+    """The noise estimate is cached, but a change of the per-frame fit (a training step)
+    is seen: undoing the ideal fit makes the fitted poses agree with the noisy input, the
+    noise estimate falls to zero and the held-out frame keeps all of its input."""
+    h, _, test = _jittered_human(body_model, adaptive=True)
+    before = h._input_noise()[0].clone()
+    assert float(before.min()) > 0
+    with torch.no_grad():
+        h.frame_pose_delta.zero_()
+    after = h._input_noise()[0]
+    assert float(after.max()) < 1e-6 * float(before.min())
+    t = test[2]
+    torch.testing.assert_close(h.frame_pose(t)[0][0, h.refined_bones], h.base_pose[t, h.refined_bones],
+                               atol=1e-5, rtol=0)
+
+
+def test_adaptive_held_out_share_falls_back_to_the_fixed_one_on_few_frames(body_model):
+    """Too few training frames with neighbours on both sides to estimate the noise: the
+    fixed `held_out_input_weight` applies, as with `held_out_adaptive` off."""
+    kw = {"T": 7, "every": 3, "jitter": 0.03, "input_weight": 0.3}
+    h_adaptive, _, test = _jittered_human(body_model, adaptive=True, **kw)
+    h_fixed, _, _ = _jittered_human(body_model, **kw)
+    assert h_adaptive._input_noise() is None
+    torch.testing.assert_close(h_adaptive.frame_pose(3)[0], h_fixed.frame_pose(3)[0])
 
 
 def test_without_per_frame_pose_held_out_frames_keep_their_corrected_input(body_model):

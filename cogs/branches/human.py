@@ -33,6 +33,7 @@ from cogs.branches.shading import Irradiance
 from cogs.branches.surgery import SPLIT_SHRINK, BranchGaussians, Geometry
 from cogs.geometry.rotations import (
     axis_angle_to_quat,
+    quat_conjugate,
     quat_geodesic_angle,
     quat_multiply,
     quat_normalize,
@@ -40,6 +41,7 @@ from cogs.geometry.rotations import (
     rotmat_from_two_vectors,
     quat_to_rotmat,
     rotmat_to_quat,
+    quat_to_axis_angle,
 )
 
 
@@ -88,15 +90,33 @@ class HumanConfig:
     held_out_max_gap: int = 3
     """Farthest neighbour (frames) a held-out frame's interpolation may use."""
     held_out_input_weight: float = 0.3
-    """How much of the held-out frame's own input motion its pose keeps: the neighbours'
-    interpolated fits, turned by this fraction of the rotation (and moved by this fraction
-    of the translation) by which the frame's input departs from its neighbours'
-    interpolated inputs. That departure is the motion the interpolation misses (signal)
-    plus the estimator's jitter on that frame (noise), so the best weight is a shrinkage
-    between 0 (the neighbours alone) and 1 (all of the input's detail, all of its jitter).
-    Chosen by leave-one-out on the demo scene's training frames alone (joints against the
-    truth); a smoother estimator (the real clip's) prefers more of the input. Not yet
-    chosen on three scenes."""
+    """How much of the held-out frame's own input motion its pose keeps (with
+    `held_out_adaptive`, at least): the neighbours' interpolated fits, turned by this
+    fraction of the rotation (and moved by this fraction of the translation) by which the
+    frame's input departs from its neighbours' interpolated inputs. That departure is the
+    motion the interpolation misses (signal) plus the estimator's jitter on that frame
+    (noise), so the best weight is a shrinkage between 0 (the neighbours alone) and 1 (all
+    of the input's detail, all of its jitter). Chosen by leave-one-out on the demo scene's
+    training frames alone (joints against the truth); kept as the floor of the adaptive
+    share after the three-scene check in docs/experiments/2026-11-27-held-out-poses.md."""
+    held_out_adaptive: bool = True
+    """Where a held-out frame's input departs from its neighbours by far more than the
+    estimator's jitter (fast motion between held-out neighbours, a clip subsampled during a
+    swing), keep more of the frame's own motion: per refined bone and frame the share is
+    max(`held_out_input_weight`, 1 - c s^2 / |d|^2) (c = `held_out_noise_factor`), d the
+    frame's input departure from its neighbours (as above) and s^2 the estimator's noise on
+    that bone: the mean squared disagreement between the input's and the fitted poses'
+    departures over the training frames, each left out of its own neighbours (a
+    positive-part James-Stein shrinkage); the translation likewise. Bones the training
+    never corrects, and clips with too few fitted training frames, keep the fixed share.
+    Chosen on the demo scene, `cogs synth --seed 7 --frames 80 --fps 15` and the
+    basketball clip, each at its own frame rate and with its training frames thinned to
+    every 2nd-3rd (docs/experiments/2026-11-27-held-out-poses.md)."""
+    held_out_noise_factor: float = 8.0
+    """c above: how many times the estimated noise a departure's square must exceed before
+    more than the fixed share of it is kept. Heavy-tailed jitter (an estimator's occasional
+    large error) looks like motion to a smaller c. Chosen with `held_out_adaptive` on the
+    same runs (2, 4, 8 tried)."""
     pose_keyframe_every: float = 12.0
     """The corrections are a smooth function of time: linear between keyframes this many
     frames apart. Every training view then updates the correction of its neighbours too,
@@ -351,30 +371,73 @@ class HumanBranch(Branch):
         Every bone and the translation are interpolated from the fitted poses (input,
         smooth correction and per-frame residual) of the nearest training frames on each
         side: the Lagrange polynomial through up to `held_out_neighbours` of them per side,
-        quaternions blended per bone. A fraction `held_out_input_weight` of the frame's own
-        input detail (its input against the same interpolation of its neighbours' inputs)
-        is added back. A frame without a training neighbour on both sides within
+        quaternions blended per bone. A share of the frame's own input detail (its input
+        against the same interpolation of its neighbours' inputs) is added back: decided
+        per bone from the clip's own noise (`held_out_adaptive`), or the fixed
+        `held_out_input_weight`. A frame without a training neighbour on both sides within
         `held_out_max_gap` (the clip's ends) keeps its corrected input. No image of frame t
         is looked at; its input pose is, as an estimator's output for every frame.
         """
-        from cogs.geometry.rotations import quat_conjugate, quat_to_axis_angle
-
         nb = _lagrange_neighbours(t, self._trained, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
         if nb is None:
             dp, dt = self._refinement(float(t))
             return self.base_pose[t : t + 1].index_add(1, self.refined_bones, dp), self.base_transl[t : t + 1] + dt
-        frames = torch.tensor(nb[0], device=self.base_pose.device)
-        weights = torch.tensor(nb[1], dtype=torch.float32, device=self.base_pose.device)
         quats, transl = self._fitted_poses()
-        q, tr = _blend(quats, transl, frames, weights)
-        w = self.cfg.held_out_input_weight
-        if w:
-            q_in = quat_sign_continuous(axis_angle_to_quat(self.base_pose))
-            qi, ti = _blend(q_in, self.base_transl, frames, weights)
-            detail = quat_to_axis_angle(quat_multiply(q_in[t], quat_conjugate(qi)))
-            q = quat_multiply(axis_angle_to_quat(w * detail), q)
-            tr = tr + w * (self.base_transl[t] - ti)
-        return quat_to_axis_angle(q)[None], tr[None]
+        q_in = quat_sign_continuous(axis_angle_to_quat(self.base_pose))
+        q, tr = _blend(quats, transl, *_as_tensors(nb, transl))
+        detail, detail_t = _detail(q_in, self.base_transl, t, nb)
+        w, w_t = self._input_shares(detail, detail_t)
+        q = quat_multiply(axis_angle_to_quat(w[:, None] * detail), q)
+        return quat_to_axis_angle(q)[None], (tr + w_t * detail_t)[None]
+
+    def _input_shares(self, detail: Tensor, detail_t: Tensor) -> tuple[Tensor, Tensor]:
+        """Share of a held-out frame's input detail kept per bone [J] and for the
+        translation [] (see `held_out_adaptive`)."""
+        fixed = detail.new_full(detail.shape[:1], self.cfg.held_out_input_weight)
+        fixed_t = detail_t.new_tensor(self.cfg.held_out_input_weight)
+        noise = self._input_noise() if self.cfg.held_out_adaptive else None
+        if noise is None:
+            return fixed, fixed_t
+        c = self.cfg.held_out_noise_factor
+        s2, s2_t = noise
+        shrink = lambda d2, s: (1.0 - c * s / d2.clamp_min(1e-20)).clamp(0.0, 1.0)  # noqa: E731
+        w = fixed.clone()
+        major = self.refined_bones
+        w[major] = shrink(detail[major].square().sum(-1), s2).clamp_min(self.cfg.held_out_input_weight)
+        return w, shrink(detail_t.square().sum(), s2_t).clamp_min(self.cfg.held_out_input_weight)
+
+    @torch.no_grad()
+    def _input_noise(self) -> tuple[Tensor, Tensor] | None:
+        """The input estimator's noise in a frame's departure from its neighbours, per
+        refined bone [B] (radians^2) and for the translation [] (m^2): the mean squared
+        difference between the input's and the fitted poses' departures over the training
+        frames, each interpolated from its own training neighbours (itself left out).
+        None with fewer than `_MIN_NOISE_FRAMES` such frames. Cached until a pose
+        parameter, the training frames or the neighbour settings change."""
+        key = (tuple(self._trained), self.cfg.held_out_neighbours, self.cfg.held_out_max_gap,
+               *(p._version for p in (self.pose_delta, self.transl_delta, self.frame_pose_delta,
+                                      self.frame_transl_delta, self.base_pose, self.base_transl)))
+        cached = getattr(self, "_noise_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        quats, transl = self._fitted_poses()
+        q_in = quat_sign_continuous(axis_angle_to_quat(self.base_pose))
+        major = self.refined_bones
+        sq, sq_t, n = torch.zeros_like(quats[0, major, 0]), transl.new_zeros(()), 0
+        for t in (k for k, trained in enumerate(self._trained) if trained):
+            others = list(self._trained)
+            others[t] = False
+            nb = _lagrange_neighbours(t, others, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
+            if nb is None:
+                continue
+            d_in, dt_in = _detail(q_in, self.base_transl, t, nb)
+            d_fit, dt_fit = _detail(quats, transl, t, nb)
+            sq += (d_in[major] - d_fit[major]).square().sum(-1)
+            sq_t += (dt_in - dt_fit).square().sum()
+            n += 1
+        noise = (sq / n, sq_t / n) if n >= _MIN_NOISE_FRAMES else None
+        object.__setattr__(self, "_noise_cache", (key, noise))
+        return noise
 
     def _fitted_poses(self) -> tuple[Tensor, Tensor]:
         """Every frame's bone rotations [T, J, 4] (wxyz, sign-continuous along time per
@@ -542,6 +605,24 @@ def _blend(quats: Tensor, transl: Tensor, frames: Tensor, weights: Tensor) -> tu
     the weighted sum; fine for the small steps between nearby frames) and translations."""
     q = torch.nn.functional.normalize((weights[:, None, None] * quats[frames]).sum(0), dim=-1)
     return q, (weights[:, None] * transl[frames]).sum(0)
+
+
+def _as_tensors(nb: tuple[list[int], list[float]], like: Tensor) -> tuple[Tensor, Tensor]:
+    """`_lagrange_neighbours`' (frames, weights) as tensors on `like`'s device."""
+    return (torch.tensor(nb[0], device=like.device),
+            torch.tensor(nb[1], dtype=torch.float32, device=like.device))
+
+
+def _detail(quats: Tensor, transl: Tensor, t: int, nb: tuple[list[int], list[float]]) -> tuple[Tensor, Tensor]:
+    """How frame t's pose departs from the interpolation of its neighbours `nb`: per-bone
+    rotation [J, 3] (axis-angle of q_t q_interp^-1) and translation [3]."""
+    q, tr = _blend(quats, transl, *_as_tensors(nb, transl))
+    return quat_to_axis_angle(quat_multiply(quats[t], quat_conjugate(q))), transl[t] - tr
+
+
+_MIN_NOISE_FRAMES = 5
+"""Training frames with neighbours on both sides needed to estimate the input's noise
+(`HumanBranch._input_noise`); below it the fixed `held_out_input_weight` applies."""
 
 
 def visibility_indicator(
