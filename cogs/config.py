@@ -290,20 +290,13 @@ ADDED: dict[tuple[str, str], str] = {
     ("HumanConfig", "visibility_max_frames"): "a bound on the frames visibility is counted on (2026-11-25)",
     ("ObjectConfig", "min_confidence"): "frames whose object mask is not trusted leave the object's supervision; "
                                         "scenes of older runs record no confidence, so every frame is kept (2026-11-26)",
-    ("HumanConfig", "held_out_adaptive"): "held-out frames keep a share of their input's motion decided per bone from "
-                                          "the clip's own noise; older runs keep the fixed share (2026-11-27)",
+    ("HumanConfig", "held_out_adaptive"): "held-out frames may keep a share of their input's motion decided per bone "
+                                          "from the clip's own noise; off, as before (2026-11-27)",
     ("HumanConfig", "held_out_noise_factor"): "the adaptive held-out share's noise multiple (2026-11-27)",
 }
 """(dataclass, key) of settings added after runs were written: an older config.yaml that
 lacks one takes its default, which reproduces what that run did (or, for a new stage,
-what `cogs train --resume` then adds), or the value in `LEGACY` where the default
-changed what a run does."""
-
-LEGACY: dict[tuple[str, str], Any] = {
-    ("HumanConfig", "held_out_adaptive"): False,
-}
-"""The value an older config.yaml without an `ADDED` setting takes where the setting's
-default is not what that run did."""
+what `cogs train --resume` then adds)."""
 
 RETIRED: dict[tuple[str, str], str] = {
     ("Density", "reset_opacity_every"): "opacity resets were removed",
@@ -526,7 +519,6 @@ def from_dict(data: Any, where: str = "config") -> TrainConfig:
                     continue
                 kwargs[key] = coerced
         missing.extend(f"{prefix}{k}" for k in fields if k not in values and (cls.__name__, k) not in ADDED)
-        kwargs.update({k: LEGACY[cls.__name__, k] for k in fields if k not in values and (cls.__name__, k) in LEGACY})
         return cls(**kwargs)
 
     cfg = build(TrainConfig, data, "")

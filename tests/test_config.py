@@ -126,18 +126,3 @@ def test_older_runs_settings_that_were_retired_are_ignored(tmp_path):
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(data))
     assert load_config(tmp_path / "config.yaml") == quick_config()
 
-
-def test_an_older_run_without_a_setting_whose_default_changed_keeps_what_it_did(tmp_path):
-    """Runs written before the adaptive held-out share recorded no `held_out_adaptive`:
-    they load with the fixed share they were evaluated with; a run that records the
-    setting keeps its own value."""
-    data = to_dict(quick_config())
-    human = data["branches"]["human"]
-    del human["held_out_adaptive"], human["held_out_noise_factor"]
-    (tmp_path / "config.yaml").write_text(yaml.safe_dump(data))
-    old = load_config(tmp_path / "config.yaml")
-    assert old.branches.human.held_out_adaptive is False
-    assert quick_config().branches.human.held_out_adaptive is True
-    human["held_out_adaptive"] = True
-    (tmp_path / "config.yaml").write_text(yaml.safe_dump(data))
-    assert load_config(tmp_path / "config.yaml") == quick_config()

@@ -97,26 +97,29 @@ class HumanConfig:
     motion the interpolation misses (signal) plus the estimator's jitter on that frame
     (noise), so the best weight is a shrinkage between 0 (the neighbours alone) and 1 (all
     of the input's detail, all of its jitter). Chosen by leave-one-out on the demo scene's
-    training frames alone (joints against the truth); kept as the floor of the adaptive
-    share after the three-scene check in docs/experiments/2026-11-27-held-out-poses.md."""
-    held_out_adaptive: bool = True
+    training frames alone (joints against the truth); on the three scenes of
+    `held_out_adaptive` it stayed the best fixed share (0 and 1 tried) at their own frame
+    rates (docs/experiments/2026-11-27-held-out-poses.md)."""
+    held_out_adaptive: bool = False
     """Where a held-out frame's input departs from its neighbours by far more than the
-    estimator's jitter (fast motion between held-out neighbours, a clip subsampled during a
-    swing), keep more of the frame's own motion: per refined bone and frame the share is
-    max(`held_out_input_weight`, 1 - c s^2 / |d|^2) (c = `held_out_noise_factor`), d the
-    frame's input departure from its neighbours (as above) and s^2 the estimator's noise on
-    that bone: the mean squared disagreement between the input's and the fitted poses'
-    departures over the training frames, each left out of its own neighbours (a
+    estimator's jitter, keep more of the frame's own motion: per refined bone and frame the
+    share is max(`held_out_input_weight`, 1 - c s^2 / |d|^2) (c = `held_out_noise_factor`),
+    d the frame's input departure from its neighbours (as above) and s^2 the estimator's
+    noise on that bone: the mean squared disagreement between the input's and the fitted
+    poses' departures over the training frames, each left out of its own neighbours (a
     positive-part James-Stein shrinkage); the translation likewise. Bones the training
     never corrects, and clips with too few fitted training frames, keep the fixed share.
-    Chosen on the demo scene, `cogs synth --seed 7 --frames 80 --fps 15` and the
-    basketball clip, each at its own frame rate and with its training frames thinned to
-    every 2nd-3rd (docs/experiments/2026-11-27-held-out-poses.md)."""
-    held_out_noise_factor: float = 8.0
+    Turn it on for clips whose motion is fast against the frame rate (a swing subsampled
+    with `--stride`): on the demo scene, `cogs synth --seed 7 --frames 80 --fps 15` and
+    the basketball clip with their training frames thinned to every 2nd-3rd it posed the
+    held-out frames better on all three; at their own frame rates it was even on the
+    synthetic scenes and worse on the basketball clip (an estimator's occasional large
+    error looks like motion), hence off by default
+    (docs/experiments/2026-11-27-held-out-poses.md)."""
+    held_out_noise_factor: float = 4.0
     """c above: how many times the estimated noise a departure's square must exceed before
-    more than the fixed share of it is kept. Heavy-tailed jitter (an estimator's occasional
-    large error) looks like motion to a smaller c. Chosen with `held_out_adaptive` on the
-    same runs (2, 4, 8 tried)."""
+    more than the fixed share of it is kept. Chosen with `held_out_adaptive` on the same
+    runs thinned to every 2nd-3rd frame (2, 4, 6, 8 tried)."""
     pose_keyframe_every: float = 12.0
     """The corrections are a smooth function of time: linear between keyframes this many
     frames apart. Every training view then updates the correction of its neighbours too,
