@@ -98,8 +98,8 @@ class HumanConfig:
     (noise), so the best weight is a shrinkage between 0 (the neighbours alone) and 1 (all
     of the input's detail, all of its jitter). Chosen by leave-one-out on the demo scene's
     training frames alone (joints against the truth); on the three scenes of
-    `held_out_adaptive` it stayed the best fixed share (0 and 1 tried) at their own frame
-    rates (docs/experiments/2026-11-27-held-out-poses.md)."""
+    `held_out_adaptive` it beat 0 at their own frame rates, and 1 on the demo scene (not
+    re-chosen on three scenes; docs/experiments/2026-11-27-held-out-poses.md)."""
     held_out_adaptive: bool = False
     """Where a held-out frame's input departs from its neighbours by far more than the
     estimator's jitter, keep more of the frame's own motion: per refined bone and frame the
