@@ -1001,6 +1001,66 @@ def test_object_fit_keeps_a_box_at_rest_still_while_the_camera_circles_it():
     assert np.nanmin(fit.iou) > 0.8
 
 
+def _box_clip(w2c: np.ndarray, centres: np.ndarray, K: np.ndarray, shape=(240, 320)):
+    from cogs.preprocess.objectfit import cuboid_points, silhouette
+
+    R_box = _rot_about(np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]), 40.0) @ _rot(0, 30.0)
+    corners = cuboid_points(np.array([0.15, 0.10, 0.06])) @ R_box.T
+    return np.stack([silhouette((corners + c) @ w[:3, :3].T + w[:3, 3], K, shape) for w, c in zip(w2c, centres)])
+
+
+def _circling(T: int, step_deg: float = 6.0) -> np.ndarray:
+    from cogs.geometry.camera import look_at
+
+    return np.stack([look_at([2.5 * np.sin(np.radians(step_deg * t - 30)), -2.5 * np.cos(np.radians(step_deg * t - 30)), 1.3], [0.2, 0, 0.9])
+                     for t in range(T)])
+
+
+def test_rest_positions_triangulate_a_resting_object_and_refuse_a_moving_one_or_a_still_camera():
+    from cogs.preprocess.objectfit import _CoarseMask, rest_positions
+
+    T = 10
+    K = S.intrinsics(320, 240, 400.0)
+    centre = np.array([0.2, 0.0, 0.9])
+    w2c = _circling(T)
+    frames = [_CoarseMask(m, K) for m in _box_clip(w2c, np.tile(centre, (T, 1)), K)]
+    X = rest_positions(frames, w2c, K, np.ones(T, bool))
+    assert np.isfinite(X).all()
+    # The mask centroid is not quite the centre's image: a few cm at 2.5 m.
+    assert np.linalg.norm(X - centre, axis=1).max() < 0.05
+    # Frames left out are not given a position.
+    X = rest_positions(frames, w2c, K, np.arange(T) != 4)
+    assert np.isnan(X[4]).all() and np.isfinite(X[np.arange(T) != 4]).all()
+    # Rising 4 cm a frame (a ball in the air) while the camera moves sideways: no fixed point.
+    moving = centre + np.outer(np.arange(T), [0.0, 0.0, 0.04])
+    frames = [_CoarseMask(m, K) for m in _box_clip(w2c, moving, K)]
+    assert np.isnan(rest_positions(frames, w2c, K, np.ones(T, bool))).all()
+    # A nearly still camera (2.7 degrees round the box in all) sees too little parallax.
+    still = _circling(T, step_deg=0.3)
+    frames = [_CoarseMask(m, K) for m in _box_clip(still, np.tile(centre, (T, 1)), K)]
+    assert np.isnan(rest_positions(frames, still, K, np.ones(T, bool))).all()
+
+
+def test_object_fit_takes_a_resting_objects_depth_from_the_moving_camera():
+    # No hand at the box and the person a metre behind it: without its rest the box would
+    # be placed as far as the person, 40 % too far.
+    from cogs.preprocess.objectfit import fit_object
+
+    T = 10
+    K = S.intrinsics(320, 240, 400.0)
+    centre = np.array([0.2, 0.0, 0.9])
+    w2c = _circling(T)
+    masks = _box_clip(w2c, np.tile(centre, (T, 1)), K)
+    cam_centres = -np.einsum("tji,tj->ti", w2c[:, :3, :3], w2c[:, :3, 3])
+    away = centre - cam_centres
+    root = centre + away / np.linalg.norm(away, axis=1, keepdims=True)
+    hand = np.tile([-0.8, 0.0, 1.6], (T, 4, 1))  # a raised hand, far from the box in every view
+    fit = fit_object(masks, np.ones(T), K, w2c, hand, root, ground=(np.array([0.0, 0.0, 1.0]), 0.0))
+    assert fit.depth_source == ["rest"] * T
+    depth_err = np.linalg.norm(fit.track.translations - centre, axis=1) / np.linalg.norm(away, axis=1)
+    assert depth_err.max() < 0.02, depth_err
+
+
 def _rot_about(axis: np.ndarray, deg: float) -> np.ndarray:
     from cogs.geometry.rotations import axis_angle_to_rotmat
 

@@ -16,11 +16,14 @@ ellipsoid only wins for objects that really are round.
    rotation between consecutive frames, in the world. One silhouette is ambiguous (a box
    and its mirror image through the image plane look alike, and symmetric views tie); the
    same object seen from a moving camera, or turning smoothly, is not.
-3. **Metric size and depth from the hand**: the object is held, so where its mask is near
-   a fitted hand joint it is about as far from the camera as that hand; the median ratio of
-   hand depth to the unit proxy's depth sets the proxy's metric size (the body's metric
-   scale carries over). Every frame's depth is then the size's (a clear view) or the
-   hand's (a view partly hidden by the person), interpolated over frames without a mask.
+3. **Metric size and depth from rest and from the hand** (``rest_positions``): where the
+   object rests and the camera moves, the rays through its mask centroids meet at its
+   position, which gives those frames' depth directly and the proxy's metric size (the
+   ratio of that depth to the unit proxy's). Without a resting stretch the size comes from
+   the hand: where the mask is near a fitted hand joint the object is about as far from
+   the camera as that hand. Every other frame's depth is then the size's (a clear view) or
+   the hand's (a view partly hidden by the person), interpolated over frames without a
+   mask. The body's metric scale carries over to all of them.
 4. **Refinement**: rotation and translation together by a shrinking-step coordinate
    search on the full-resolution silhouette score, from the chosen hypothesis.
 5. **Smoothing**: cubic-Hermite/SLERP keyframes (``cogs.geometry.splines.fit_keyframes``)
@@ -56,7 +59,7 @@ class ObjectFit:
     track: ObjectTrack
     radii_m: np.ndarray  # [3] the proxy's half-extents (semi-axes) in canonical coordinates, metres
     iou: np.ndarray  # [T] silhouette IoU of the smoothed pose (NaN where the mask is empty)
-    depth_source: list[str]  # per frame: "size", "hand", "interpolated"
+    depth_source: list[str]  # per frame: "rest", "size", "hand", "interpolated"
     kind: str = "ellipsoid"  # the proxy: "cuboid" or "ellipsoid"
 
 
@@ -374,19 +377,99 @@ def _hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, eq_r_px: np.n
     return out
 
 
-def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit):
+def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, candidates: np.ndarray, min_frames: int = 3,
+                   min_parallax_deg: float = 5.0, tol: float = 0.1) -> np.ndarray:
+    """World position [T, 3] of the object in the frames where it rests (NaN elsewhere).
+
+    A resting object seen from a moving camera is a fixed point: the rays through its mask
+    centroids meet there, which measures its depth without knowing its size (the world's
+    metric scale is the body's). Runs of consecutive ``candidates`` frames are cut greedily
+    into the longest windows of at least ``min_frames`` frames whose rays meet within
+    ``tol`` x the mask's radius (at least 1.5 px) in every frame and whose rays spread over
+    ``min_parallax_deg`` or more (less leaves the depth undetermined). An object rising or
+    falling, a still camera or a mask whose centroid wanders (a hand across it) fails the
+    test; motion along the camera's own path can mimic parallax, so the candidates should be
+    frames where nothing moves the object (no hand at it).
+    ``tol`` and ``min_parallax_deg`` were set on the synthetic video benchmark's two clips
+    (docs/experiments/2026-11-27-object-at-rest.md)."""
+    T = len(frames)
+    out = np.full((T, 3), np.nan)
+    R_wc, t_wc = world_to_camera[:, :3, :3], world_to_camera[:, :3, 3]
+    Kinv = np.linalg.inv(K)
+    centre = -np.einsum("tji,tj->ti", R_wc, t_wc)
+    rays = np.full((T, 3), np.nan)
+    for t, fm in enumerate(frames):
+        if fm is not None:
+            d = R_wc[t].T @ (Kinv @ np.array([fm.centroid[0], fm.centroid[1], 1.0]))
+            rays[t] = d / np.linalg.norm(d)
+    cand = candidates & np.isfinite(rays).all(1)
+
+    def meet(sel: np.ndarray) -> np.ndarray | None:
+        P = np.eye(3)[None] - np.einsum("ti,tj->tij", rays[sel], rays[sel])
+        A, b = P.sum(0), np.einsum("tij,tj->i", P, centre[sel])
+        if np.linalg.cond(A) > 1e8:
+            return None
+        X = np.linalg.solve(A, b)
+        cam = np.einsum("tij,j->ti", R_wc[sel], X) + t_wc[sel]
+        if (cam[:, 2] <= 1e-3).any():
+            return None
+        uv = cam[:, :2] / cam[:, 2:3] * K[0, 0] + K[:2, 2]
+        for t, u in zip(np.flatnonzero(sel), uv):
+            fm = frames[t]
+            if np.linalg.norm(u - fm.centroid) > max(1.5, tol * np.sqrt(fm.area_px / np.pi)):
+                return None
+        return X
+
+    t = 0
+    while t < T:
+        if not cand[t]:
+            t += 1
+            continue
+        end = t
+        while end + 1 < T and cand[end + 1]:
+            end += 1
+        s = t
+        while s + min_frames - 1 <= end:
+            best = None
+            for e in range(s + min_frames - 1, end + 1):
+                sel = np.zeros(T, bool)
+                sel[s : e + 1] = True
+                X = meet(sel)
+                if X is None:
+                    break
+                spread = np.degrees(np.arccos(np.clip(rays[sel] @ rays[sel].T, -1.0, 1.0)).max())
+                if spread >= min_parallax_deg:
+                    best = (e, X)
+            if best is None:
+                s += 1
+                continue
+            out[s : best[0] + 1] = best[1]
+            s = best[0] + 1
+        t = end + 1
+    return out
+
+
+def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam):
     """Camera-frame poses of the chosen hypotheses with the proxy's metric size and each
-    frame's depth: (R [T, 3, 3], t [T, 3], depth [T], depth source [T], half-extents [3])."""
+    frame's depth: (R [T, 3, 3], t [T, 3], depth [T], depth source [T], half-extents [3]).
+
+    Depth, best first: a resting object's triangulated position (``rest_cam`` [T, 3], NaN
+    elsewhere), the hand's where the view is partly hidden, the proxy's metric size. The
+    size is set by the resting frames where there are some, else by the hand's depth."""
     T = len(path)
     R_obj_cam = np.einsum("tij,tjk->tik", R_wc, hyps[path])
     z_unit = trans_unit[np.arange(T), path, 2]
-    ratio = hand_depth / np.where(has, z_unit, np.nan)
-    use = np.isfinite(ratio) & clear
-    if not use.any():
-        use = np.isfinite(ratio)
-    if use.any():
-        size = float(np.median(ratio[use]))
-    else:  # never near a hand: assume the object is as far as the person
+    rest = has & np.isfinite(rest_cam).all(1)
+    size = None
+    for z in (rest_cam[:, 2], hand_depth):
+        ratio = z / np.where(has, z_unit, np.nan)
+        use = np.isfinite(ratio) & clear
+        if not use.any():
+            use = np.isfinite(ratio)
+        if use.any():
+            size = float(np.median(ratio[use]))
+            break
+    if size is None:  # never resting, never near a hand: assume the object is as far as the person
         ok = has & (root_cam[:, 2] > 0)
         size = float(np.median(root_cam[ok, 2] / z_unit[ok]))
     depth = np.full(T, np.nan)
@@ -394,7 +477,9 @@ def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_
     for t in range(T):
         if not has[t]:
             continue
-        if clear[t] or not np.isfinite(hand_depth[t]):
+        if rest[t]:
+            depth[t], source[t] = rest_cam[t, 2], "rest"
+        elif clear[t] or not np.isfinite(hand_depth[t]):
             depth[t], source[t] = size * z_unit[t], "size"
         else:
             depth[t], source[t] = hand_depth[t], "hand"
@@ -440,7 +525,7 @@ def _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, 
                 step_r *= 0.5
                 if step_r < 0.01:
                     break
-        if source[t] == "hand":  # a partly hidden view: its outline says little about depth
+        if source[t] in ("hand", "rest"):  # depth measured otherwise (a partly hidden view's outline says little about it)
             t_best = t_best / t_best[2] * depth[t]
         R_obj_cam[t], t_obj_cam[t] = R_best, t_best
     return R_obj_cam, t_obj_cam
@@ -511,7 +596,11 @@ def fit_object(
     path = np.zeros(T, np.int64)
     path[idx] = viterbi(cost[idx] * weight[idx, None], smooth_per_rad * dist)
     hand_depth = _hand_depth(hand_cam, frames, K, eq_r_px, (H, W))
-    R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit)
+    # Not held (no fitted hand at the mask) and confidently tracked: the object can only rest
+    # or fly, and a flying one fails the fixed-point test.
+    rest_world = rest_positions(frames, world_to_camera, K, has & (confidence >= 0.5) & ~np.isfinite(hand_depth))
+    rest_cam = np.einsum("tij,tj->ti", R_wc, rest_world) + t_wc
+    R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam)
     R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
     n_measured = 0
     if images is not None and len(idx) >= 2:
@@ -529,7 +618,7 @@ def fit_object(
             return feature_per_rad * np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
 
         path[idx] = viterbi(cost[idx] * weight[idx, None], pairwise)
-        R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit)
+        R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam)
         R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
     pts = proxy_points(kind, half)
 
