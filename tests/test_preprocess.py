@@ -1061,6 +1061,31 @@ def test_object_fit_takes_a_resting_objects_depth_from_the_moving_camera():
     assert depth_err.max() < 0.02, depth_err
 
 
+def test_fill_rotations_turns_a_hidden_held_object_with_its_carrier():
+    from cogs.preprocess.objectfit import fill_rotations
+
+    T = 9
+    carrier = np.stack([_rot(2, 35.0 * t) for t in range(T)])  # the person turning round, 35 degrees a frame
+    R0 = _rot_about(np.array([0.6, 0.0, 0.8]), 50.0)
+    truth = np.einsum("tij,jk->tik", carrier, R0)  # held still in the hand
+    has = np.array([1, 1, 0, 0, 0, 0, 0, 1, 1], bool)
+    R = np.where(has[:, None, None], truth, np.eye(3))
+    angle = lambda A, B: np.degrees(np.arccos(np.clip((np.einsum("tij,tij->t", A, B) - 1) / 2, -1, 1)))
+    filled = fill_rotations(R, has, np.ones(T, bool), carrier)
+    assert angle(filled, truth).max() < 1e-4
+    # Not held at both ends, or no carrier: the shorter arc, which takes the 210 degrees the
+    # hidden frames turned the other way round (150 degrees), in even steps between the ends
+    # instead of the identity the hidden frames held.
+    for held, c in ((np.arange(T) < 5, carrier), (np.ones(T, bool), None)):
+        arc = fill_rotations(R, has, held, c)
+        assert angle(arc[2:8], arc[1:7]).max() < 26.0  # frames 1 -> 7
+        assert angle(arc, truth)[~has].max() > 1.0
+    # Before the first and after the last mask: the nearest one's.
+    edge = np.array([0, 1, 1, 1, 1, 1, 1, 1, 0], bool)
+    out = fill_rotations(np.where(edge[:, None, None], truth, np.eye(3)), edge, np.ones(T, bool), carrier)
+    assert np.allclose(out[0], truth[1]) and np.allclose(out[-1], truth[-2])
+
+
 def _rot_about(axis: np.ndarray, deg: float) -> np.ndarray:
     from cogs.geometry.rotations import axis_angle_to_rotmat
 

@@ -100,6 +100,35 @@ def rotation_distances(R: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
 
 
+def _slerp_rot(Ra: np.ndarray, Rb: np.ndarray, u: float) -> np.ndarray:
+    """The rotation a fraction u of the way from Ra to Rb along the shorter arc."""
+    from cogs.geometry.rotations import axis_angle_to_rotmat, rotmat_to_axis_angle
+
+    w = rotmat_to_axis_angle(torch.tensor(Ra.T @ Rb)).numpy()
+    return Ra @ axis_angle_to_rotmat(torch.tensor(u * w)).numpy()
+
+
+def fill_rotations(R: np.ndarray, has: np.ndarray, held: np.ndarray, carrier: np.ndarray | None) -> np.ndarray:
+    """World rotations [T, 3, 3] with the frames without a mask filled in from the frames
+    either side: where the object is held at both ends and a ``carrier`` [T, 3, 3] is given
+    (the body part that holds it), the carrier's own turn with the object's rotation
+    relative to it interpolated; otherwise the shorter arc; before the first and after the
+    last mask, the nearest one's rotation."""
+    R = R.copy()
+    idx = np.flatnonzero(has)
+    assert len(idx) > 0
+    R[: idx[0]] = R[idx[0]]
+    R[idx[-1] + 1 :] = R[idx[-1]]
+    for a, b in zip(idx[:-1], idx[1:]):
+        for t in range(a + 1, b):
+            u = (t - a) / (b - a)
+            if carrier is not None and held[a] and held[b]:
+                R[t] = carrier[t] @ _slerp_rot(carrier[a].T @ R[a], carrier[b].T @ R[b], u)
+            else:
+                R[t] = _slerp_rot(R[a], R[b], u)
+    return R
+
+
 def silhouette(points_cam: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray | None:
     """Filled convex hull of the projected points -> [H, W] bool (None when behind the camera)."""
     import cv2
@@ -546,13 +575,17 @@ def fit_object(
     proxy_frames: int = 6,
     images: np.ndarray | None = None,
     feature_per_rad: float = 1.0,
+    carrier_world: np.ndarray | None = None,
+    held_reach: int = 2,
     on_frame=None,
 ) -> ObjectFit:
     """Initial object poses for every frame.
 
     masks [T, H, W] bool; confidence [T] in [0, 1]; world_to_camera [T, 4, 4];
     hand_points_world [T, P, 3] fitted hand joints; body_root_world [T, 3];
-    human_masks [T, H, W] flag frames where the object borders the person (partial views).
+    human_masks [T, H, W] flag frames where the object borders the person (partial views);
+    carrier_world [T, 3, 3]: the world rotation of the body part that carries a held object
+    (the pipeline gives the fitted body's root), or None.
 
     ``n_hypotheses`` world rotations are scored per frame (about 15 degrees apart);
     ``smooth_per_rad`` is the cost of turning one radian between consecutive frames, in
@@ -563,6 +596,11 @@ def fit_object(
     512x384 one; docs/experiments/2026-11-25-initial-object-pose.md): a weaker smoothness
     let mirror-image solutions through, a stronger one or a stronger feature term did no
     better on both. ``n_hypotheses`` and ``proxy_frames`` were set there without a sweep.
+
+    Frames without a mask take their rotation from the frames either side
+    (``fill_rotations``): while the object is held at both ends (a fitted hand at its mask
+    within ``held_reach`` masked frames) it turns with the carrier, so a person turning
+    round with the object hidden in front of them turns it with them.
     """
     T, H, W = masks.shape
     f = float(K[0, 0])
@@ -571,6 +609,7 @@ def fit_object(
     if not has.any():
         raise ValueError("fit_object: every object mask is empty")
     assert np.isfinite(world_to_camera).all() and np.isfinite(hand_points_world).all(), "fit_object: non-finite body or cameras"
+    assert carrier_world is None or (carrier_world.shape == (T, 3, 3) and np.isfinite(carrier_world).all()), "fit_object: bad carrier"
 
     hand_cam = np.einsum("tij,tpj->tpi", R_wc, hand_points_world) + t_wc[:, None]
     root_cam = np.einsum("tij,tj->ti", R_wc, body_root_world) + t_wc
@@ -622,8 +661,13 @@ def fit_object(
         R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
     pts = proxy_points(kind, half)
 
-    # Camera -> world.
+    # Camera -> world; frames without a mask from the frames either side.
     R_world = np.einsum("tji,tjk->tik", R_wc, R_obj_cam)
+    near = np.isfinite(hand_depth)
+    held = np.zeros(T, bool)  # a partial mask's centroid can stray from the hand for a frame
+    for k, t in enumerate(idx):
+        held[t] = near[idx[max(0, k - held_reach) : k + held_reach + 1]].any()
+    R_world = fill_rotations(R_world, has, held, carrier_world)
     t_world = np.einsum("tji,tj->ti", R_wc, t_obj_cam - t_wc)
     if ground is not None:
         n, d = ground

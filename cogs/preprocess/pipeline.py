@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 1
 TRACKER_VERSION = 3  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
-OBJECT_POSE_VERSION = 3  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
+OBJECT_POSE_VERSION = 4  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
 
@@ -636,14 +636,24 @@ class _Runner:
         return arrays, {"summary": summary, "stats": stats}
 
     def _object_pose(self, label, ui, images, ob, human_masks, bo, K):
+        import torch
+
+        from cogs.body import load_body_model
         from cogs.preprocess.objectfit import fit_object
 
         masks = ob["masks"].astype(bool)
         T = len(masks)
         update = ui.task(label, T)
+        # The fitted body's root carries a held object where the masks lose it (the fitted
+        # forearm's twist is barely observed by the landmarks).
+        model = load_body_model(self.cfg.body_model)
+        with torch.no_grad():
+            A, _ = model.bone_transforms(torch.tensor(bo["pose"], dtype=torch.float64), torch.tensor(bo["transl"], dtype=torch.float64),
+                                         torch.tensor(bo["shape"], dtype=torch.float64))
+        root = A[:, model.bone_index("root"), :3, :3].numpy()
         fit = fit_object(masks, ob["confidence"], K, bo["world_to_camera"], bo["hand_joints"].astype(np.float64),
                          bo["root"].astype(np.float64), human_masks=human_masks, ground=(np.array([0.0, 0.0, 1.0]), 0.0),
-                         images=images, on_frame=lambda k: update(k))
+                         images=images, carrier_world=root, on_frame=lambda k: update(k))
         stats = {"proxy": fit.kind, "radii_m": fit.radii_m.tolist(), "mean_iou": float(np.nanmean(fit.iou)), "depth_source": fit.depth_source}
         return {"quats": fit.track.quats, "translations": fit.track.translations, "centre": fit.track.centre,
                 "radii": fit.radii_m, "kind": np.array(fit.kind), "iou": fit.iou}, {
