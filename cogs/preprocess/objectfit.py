@@ -432,6 +432,8 @@ def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, can
             d = R_wc[t].T @ (Kinv @ np.array([fm.centroid[0], fm.centroid[1], 1.0]))
             rays[t] = d / np.linalg.norm(d)
     cand = candidates & np.isfinite(rays).all(1)
+    cent = np.array([fm.centroid if fm is not None else (np.nan, np.nan) for fm in frames])
+    tol_px = np.array([max(1.5, tol * np.sqrt(fm.area_px / np.pi)) if fm is not None else np.nan for fm in frames])
 
     def meet(sel: np.ndarray) -> np.ndarray | None:
         P = np.eye(3)[None] - np.einsum("ti,tj->tij", rays[sel], rays[sel])
@@ -443,11 +445,7 @@ def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, can
         if (cam[:, 2] <= 1e-3).any():
             return None
         uv = cam[:, :2] / cam[:, 2:3] * K[0, 0] + K[:2, 2]
-        for t, u in zip(np.flatnonzero(sel), uv):
-            fm = frames[t]
-            if np.linalg.norm(u - fm.centroid) > max(1.5, tol * np.sqrt(fm.area_px / np.pi)):
-                return None
-        return X
+        return None if (np.linalg.norm(uv - cent[sel], axis=1) > tol_px[sel]).any() else X
 
     t = 0
     while t < T:
@@ -459,17 +457,20 @@ def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, can
             end += 1
         s = t
         while s + min_frames - 1 <= end:
-            best = None
+            best, whole = None, True
             for e in range(s + min_frames - 1, end + 1):
                 sel = np.zeros(T, bool)
                 sel[s : e + 1] = True
                 X = meet(sel)
                 if X is None:
+                    whole = False
                     break
                 spread = np.degrees(np.arccos(np.clip(rays[sel] @ rays[sel].T, -1.0, 1.0)).max())
                 if spread >= min_parallax_deg:
                     best = (e, X)
             if best is None:
+                if whole:  # the rest of the run meets in a point but with too little parallax
+                    break
                 s += 1
                 continue
             out[s : best[0] + 1] = best[1]
