@@ -102,10 +102,10 @@ def rotation_distances(R: np.ndarray) -> np.ndarray:
 
 def _slerp_rot(Ra: np.ndarray, Rb: np.ndarray, u: float) -> np.ndarray:
     """The rotation a fraction u of the way from Ra to Rb along the shorter arc."""
-    from cogs.geometry.rotations import axis_angle_to_rotmat, rotmat_to_axis_angle
+    from cogs.geometry.rotations import quat_to_rotmat, rotmat_to_quat, slerp
 
-    w = rotmat_to_axis_angle(torch.tensor(Ra.T @ Rb)).numpy()
-    return Ra @ axis_angle_to_rotmat(torch.tensor(u * w)).numpy()
+    q = rotmat_to_quat(torch.tensor(np.stack([Ra, Rb])))
+    return quat_to_rotmat(slerp(q[0], q[1], torch.tensor(u, dtype=q.dtype))).numpy()
 
 
 def fill_rotations(R: np.ndarray, has: np.ndarray, held: np.ndarray, carrier: np.ndarray | None) -> np.ndarray:
