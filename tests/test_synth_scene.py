@@ -230,3 +230,40 @@ def test_same_seed_writes_the_same_files_and_the_cli_previews(tmp_path):
     sa = load_scene(a)
     assert not np.array_equal(c.body.pose, sa.body.pose)  # another seed, other noise
     assert np.array_equal(c.images, sa.images)  # ... but the same true renders
+
+
+def test_a_scene_too_large_for_the_memory_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    from cogs.cli import main
+    from cogs.data.synth.generate import peak_bytes
+    from cogs.memory import GiB
+
+    monkeypatch.setenv("COGS_MEMORY_GB", "4")
+    out = tmp_path / "big"
+    assert main(["synth", "--out", str(out), "--frames", "600", "--width", "1024", "--height", "1024"]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "--frames 600 at 1024x1024 needs about" in err and "4.0 GiB available" in err and "Traceback" not in err
+    assert not out.exists()
+    # the frame count it names is the largest that fits, and the size it names fits too
+    n = int(err.split("Make it fit with --frames ")[1].split()[0])
+    assert peak_bytes(SynthConfig(frames=n, width=1024, height=1024)) <= 4 * GiB
+    assert peak_bytes(SynthConfig(frames=n + 1, width=1024, height=1024)) > 4 * GiB
+    w, h = (int(v) for v in err.split("--width ")[1].rstrip(".").split(" --height "))
+    assert w == h < 1024 and peak_bytes(SynthConfig(frames=600, width=w, height=h)) <= 4 * GiB
+
+
+def test_the_memory_estimate_is_above_what_generating_a_scene_takes(tmp_path):
+    """The generator's peak, measured on a real run in a fresh process (ru_maxrss of the
+    child), is below the estimate the refusal uses, and not far below it."""
+    import subprocess
+    import sys
+
+    from cogs.data.synth.generate import peak_bytes
+
+    probe = ("import resource, subprocess, sys; "
+             "subprocess.run([sys.executable, '-m', 'cogs.cli', 'synth', '--out', sys.argv[1], '--frames', '3', "
+             "'--width', '512', '--height', '384'], check=True, capture_output=True); "
+             "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
+    res = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "s")], capture_output=True, text=True, check=True)
+    measured = int(res.stdout.split()[-1]) * 1024  # kB on Linux
+    estimate = peak_bytes(SynthConfig(frames=3, width=512, height=384))
+    assert measured <= estimate <= 1.5 * measured, (measured, estimate)

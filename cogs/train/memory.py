@@ -13,12 +13,10 @@ The per-pixel and base figures were measured with /usr/bin/time -v on 2-core mac
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 from cogs.errors import UserError
-
-GiB = 1024**3
+from cogs.memory import GiB, available_bytes
 
 BASE_BYTES = int(1.6 * GiB)
 """The process before any frame: Python, torch, numba's compiled kernels, the body model."""
@@ -30,9 +28,6 @@ FRAME_BYTES_PER_PIXEL = 5
 GAUSSIAN_BYTES = 2_000
 """One Gaussian with its raw parameters (SH degree 3 at most), gradients, Adam moments,
 density statistics and the human's seed buffers, rounded up."""
-MEMORY_ENV = "COGS_MEMORY_GB"
-"""Environment variable: the memory (GiB) the check believes available, overriding what
-the machine reports (for a shared machine, a container, or a test)."""
 
 
 @dataclass
@@ -59,32 +54,6 @@ def estimate(n_frames: int, width: int, height: int, cfg) -> Estimate:
     caps = (cfg.human_density.max_gaussians + cfg.object_density.max_gaussians + cfg.scene_density.max_gaussians)
     return Estimate(frames=n_frames, frame_bytes=n_frames * px * FRAME_BYTES_PER_PIXEL,
                     step_bytes=px * STEP_BYTES_PER_PIXEL, gaussian_bytes=caps * GAUSSIAN_BYTES)
-
-
-def available_bytes() -> int | None:
-    """Memory this process may still use: COGS_MEMORY_GB if set, else the kernel's
-    MemAvailable (and a cgroup limit, if lower); None where neither can be read."""
-    if os.environ.get(MEMORY_ENV):
-        try:
-            return int(float(os.environ[MEMORY_ENV]) * GiB)
-        except ValueError:
-            raise UserError(f"${MEMORY_ENV}={os.environ[MEMORY_ENV]!r}: expected a number of GiB") from None
-    avail = None
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    avail = int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
-        try:
-            raw = open(path).read().strip()
-        except OSError:
-            continue
-        if raw.isdigit() and int(raw) < (avail or 1 << 62):
-            avail = int(raw)
-    return avail
 
 
 def check_fits(n_frames: int, width: int, height: int, cfg, scene_path) -> Estimate:

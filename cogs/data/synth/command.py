@@ -55,17 +55,48 @@ class Synth:
         if self.noise.mask_morph_prob > 1:
             raise UserError(f"--noise.mask-morph-prob is a probability (0..1), got {self.noise.mask_morph_prob:g}")
         check_out_folder(self.out, overwrite=self.overwrite or is_synthetic_scene(self.out))
+        self.check_memory()
+
+    def config(self):
+        from cogs.data.synth.config import SynthConfig
+
+        return SynthConfig(frames=self.frames, width=self.width, height=self.height, fps=self.fps, seed=self.seed,
+                           noise=self.noise)
+
+    def check_memory(self) -> None:
+        """Refuse (UserError, before any work) a scene whose generation cannot fit in the
+        memory available, naming the frame count and the sizes that fit."""
+        from cogs.data.synth.generate import peak_bytes
+        from cogs.memory import GiB, available_bytes
+
+        cfg = self.config()
+        need, have = peak_bytes(cfg), available_bytes()
+        if have is None or need <= have:
+            return
+        lo, hi = 1, self.frames  # the most frames that fit: in [lo, hi), lo = none
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (mid, hi) if peak_bytes(dataclasses.replace(cfg, frames=mid)) <= have else (lo, mid)
+        fit = [lo] if lo >= 2 else []
+        scale = next((s / 100 for s in range(95, 4, -5)
+                      if peak_bytes(dataclasses.replace(cfg, width=max(16, round(self.width * s / 100)),
+                                                        height=max(16, round(self.height * s / 100)))) <= have), None)
+        hints = [f"--frames {fit[0]}" if fit else None,
+                 f"--width {round(self.width * scale)} --height {round(self.height * scale)}" if scale else None]
+        hints = [h for h in hints if h]
+        raise UserError(f"--frames {self.frames} at {self.width}x{self.height} needs about {need / GiB:.1f} GiB while the "
+                        f"scene is generated (every frame is held until it is written), more than the {have / GiB:.1f} "
+                        f"GiB available. " + ("Make it fit with " + " or ".join(hints) + "." if hints else
+                                              "Not even the smallest scene fits: free some memory."))
 
     def run(self) -> int:
         from cogs.data.outdir import staged
         from cogs.data.scene import save_scene
-        from cogs.data.synth.config import SynthConfig
         from cogs.data.synth.generate import generate_scene
         from cogs.log import console
 
         self.check_options()
-        cfg = SynthConfig(frames=self.frames, width=self.width, height=self.height, fps=self.fps, seed=self.seed,
-                          noise=self.noise)
+        cfg = self.config()
         t0 = time.perf_counter()
         scene = generate_scene(cfg)
         t1 = time.perf_counter()
