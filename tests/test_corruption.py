@@ -331,6 +331,12 @@ CASES = [
     C("preprocess --out an existing scene", nothing, "preprocess {ws}/frames --out {ws}/scene",
       ["--out {ws}/scene already holds a cogs scene 'tiny' (6 frames)", "--overwrite"], code=2),
     C("video of zero bytes", write("clip.mp4", b""), "preprocess {ws}/clip.mp4 --out {ws}/new", ["clip.mp4"], code=2),
+    C("preprocess a clip too large for the memory", nothing, "preprocess {ws}/clip.mp4 --out {ws}/new",
+      ["{ws}/clip.mp4: preprocessing 6 frames of 64x48 needs about", "more than the 1.0 GiB available"], code=2,
+      env={"COGS_MEMORY_GB": "1"}),
+    C("synth a scene too large for the memory", nothing, "synth --out {ws}/new --frames 600 --width 1024 --height 1024",
+      ["--frames 600 at 1024x1024 needs about", "more than the 2.0 GiB available", "Make it fit with --width"], code=2,
+      env={"COGS_MEMORY_GB": "2"}),
     C("video that is text", write("clip.mp4", "not a video\n" * 50), "preprocess {ws}/clip.mp4 --out {ws}/new", ["clip.mp4"], code=2),
     C("video truncated", truncate("clip.mp4", 10000), "preprocess {ws}/clip.mp4 --out {ws}/new", ["clip.mp4"], code=2),
     # import, synth, demo, render-init

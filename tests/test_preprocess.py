@@ -1155,3 +1155,25 @@ def test_a_prompt_too_small_for_the_tracker_is_warned_about_naming_the_option_an
     text = small_prompt_warning(prompt, 171, (216, 384), 384)
     assert text.startswith("--object-box 0 370 925 410 1020: the object covers only 171 pixels of frame 0 at 216x384")
     assert "--max-side (now 384)" in text
+
+
+def test_a_clip_too_long_for_the_memory_is_refused_naming_a_stride_a_limit_and_a_size_that_fit(monkeypatch):
+    from cogs.memory import GiB
+    from cogs.preprocess.frames import output_size
+    from cogs.preprocess.memory import check_fits, peak_bytes
+
+    monkeypatch.setenv("COGS_MEMORY_GB", "6")
+    check_fits("short.mp4", 100, (1920, 1080), 960, 1, None)  # a phone clip of 100 frames fits
+    with pytest.raises(UserError) as e:  # ten minutes of it do not
+        check_fits("long.mp4", 18000, (1920, 1080), 960, 1, None)
+    msg = str(e.value)
+    assert msg.startswith("long.mp4: preprocessing 18000 frames of 960x540 needs about") and "6.0 GiB available" in msg
+    stride = int(msg.split("--stride ")[1].split()[0])
+    limit = int(msg.split("--limit ")[1].split()[0].rstrip("."))
+    assert peak_bytes(-(-18000 // stride), 960, 540) <= 6 * GiB and peak_bytes(limit, 960, 540) <= 6 * GiB
+    assert peak_bytes(limit + 1, 960, 540) > 6 * GiB and peak_bytes(-(-18000 // (stride - 1)), 960, 540) > 6 * GiB
+    assert "--max-side" not in msg  # even 64 px frames of 18000 do not fit: no size is named
+    with pytest.raises(UserError) as e:
+        check_fits("clip.mp4", 1000, (3840, 2160), 3840, 1, None)  # 4K kept at full size: a smaller size fits
+    side = int(str(e.value).split("--max-side ")[1].split()[0].rstrip("."))
+    assert 64 <= side < 3840 and peak_bytes(1000, *output_size(3840, 2160, side)) <= 6 * GiB

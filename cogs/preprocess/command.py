@@ -190,13 +190,17 @@ class Preprocess:
         if self.object_masks is not None and (positives or negatives):
             option = "--object-box" if positives else "--object-negative-box"
             raise UserError(f"give either {option} or --object-masks, not both (ready-made masks are not tracked)")
-        if positives:  # the frames and boxes against the clip, where its header tells (again after decoding)
-            from cogs.preprocess.frames import probe
+        from cogs.preprocess.frames import probe
+
+        n, size = probe(src, self.stride, self.limit, self.start)  # where the header tells (checked again after decoding)
+        if positives and n and size:
             from cogs.preprocess.prompts import check_against_frames
 
-            n, size = probe(src, self.stride, self.limit, self.start)
-            if n and size:
-                check_against_frames(positives + negatives, size, n)
+            check_against_frames(positives + negatives, size, n)
+        if n and size:
+            from cogs.preprocess.memory import check_fits
+
+            check_fits(src, n, size, self.max_side, self.stride, self.limit)
         if self.object_masks is not None and not Path(self.object_masks).is_dir():
             raise UserError(f"--object-masks {self.object_masks} is not a folder")
         if self.sam2_checkpoint is not None and not Path(self.sam2_checkpoint).is_file():
