@@ -50,6 +50,37 @@ def test_video_frames_respect_stride_limit_and_max_side(tmp_path):
     assert abs(float(fr.images[2].mean()) - 40) < 4
 
 
+@pytest.mark.parametrize("rotation, corner", [(-90, (0, -1)), (90, (-1, 0)), (180, (-1, -1)), (0, (0, 0))])
+def test_a_phone_clip_stored_on_its_side_is_read_upright(tmp_path, rotation, corner):
+    """Phones store a portrait clip as landscape pixels with a quarter turn in the header's
+    display matrix; players (and so the user drawing boxes) see it turned. A red mark in
+    the stored top-left corner must be where a player shows it."""
+    import av
+
+    img = np.zeros((48, 64, 3), np.uint8)
+    img[:10, :10] = (255, 0, 0)
+    with av.open(str(tmp_path / "v.mp4"), "w") as c:
+        st = c.add_stream("libx264", rate=10)
+        st.width, st.height, st.pix_fmt = 64, 48, "yuv420p"
+        if rotation:
+            st.set_display_rotation(rotation)  # counter-clockwise, as players apply it
+        for _ in range(3):
+            for packet in st.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                c.mux(packet)
+        for packet in st.encode():
+            c.mux(packet)
+    fr = F.read_frames(tmp_path / "v.mp4", max_side=None)
+    quarter = rotation % 180 != 0
+    assert fr.images.shape == ((3, 64, 48, 3) if quarter else (3, 48, 64, 3))
+    assert fr.source_size == ((48, 64) if quarter else (64, 48))
+    assert F.probe(tmp_path / "v.mp4") == (3, fr.source_size)  # prompts are checked against the turned size
+    red = fr.images[0, ..., 0].astype(float)
+    H, W = red.shape
+    y = slice(0, 10) if corner[0] == 0 else slice(H - 10, H)
+    x = slice(0, 10) if corner[1] == 0 else slice(W - 10, W)
+    assert red[y, x].mean() > 200 and red.mean() < 60
+
+
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs to vary")
 def test_encoded_video_does_not_depend_on_how_many_cpus_the_encoder_sees(tmp_path):
     # libx264 picks its thread count from the CPUs it may use, and its output from that;

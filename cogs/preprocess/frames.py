@@ -102,12 +102,54 @@ def probe(source: str | Path, stride: int = 1, limit: int | None = None, start: 
                     st = c.streams.video[0]
                     n_source = int(st.frames) or None
                     size = (int(st.width), int(st.height)) if st.width and st.height else None
+                    if size and round(display_rotation(source) / 90.0) % 2:
+                        size = size[::-1]
     except Exception:  # whatever is wrong with the input, read_frames says it better
         return None, None
     if n_source is None:
         return None, size
     n = max(0, (n_source - start + stride - 1) // stride)
     return (min(n, limit) if limit else n), size
+
+
+def upright(rgb: np.ndarray, rotation: float, where: str = "") -> np.ndarray:
+    """The frame as a player shows it: a video's display matrix (phones store a portrait
+    clip as landscape pixels with a quarter turn in its header) rotates the decoded pixels
+    counter-clockwise by ``rotation`` degrees (PyAV's ``VideoFrame.rotation``). Quarter
+    turns only; another angle is left as decoded, with a warning."""
+    k = round(rotation / 90.0)
+    if abs(rotation - 90.0 * k) > 1.0:
+        import logging
+
+        logging.getLogger(__name__).warning("%s: display rotation of %g degrees is not a quarter turn; frames kept as "
+                                            "stored", where, rotation)
+        return rgb
+    return np.ascontiguousarray(np.rot90(rgb, k % 4)) if k % 4 else rgb
+
+
+def display_rotation(path: str | Path) -> float:
+    """The counter-clockwise turn (degrees) a video's display matrix asks for, read from its
+    first frame (0 for a folder, a video without one, or one that cannot be decoded)."""
+    path = Path(path)
+    if not path.is_file():
+        return 0.0
+    try:
+        import av
+
+        with av.open(str(path)) as c:
+            if not c.streams.video:
+                return 0.0
+            first = next(c.decode(c.streams.video[0]), None)
+            return 0.0 if first is None else _rotation(first)
+    except Exception:  # read_frames reports an unreadable input
+        return 0.0
+
+
+def _rotation(frame) -> float:
+    try:
+        return float(frame.rotation or 0.0)
+    except (AttributeError, TypeError, ValueError):  # no display matrix
+        return 0.0
 
 
 def _keep(i: int, start: int, stride: int) -> bool:
@@ -133,7 +175,7 @@ def _read_video(path: Path, stride, limit, max_side, start, on_frame) -> Frames:
             for i, frame in enumerate(container.decode(stream)):
                 if not _keep(i, start, stride):
                     continue
-                rgb = frame.to_ndarray(format="rgb24")
+                rgb = upright(frame.to_ndarray(format="rgb24"), _rotation(frame), str(path))
                 if size is None:
                     src_size = (rgb.shape[1], rgb.shape[0])
                     size = output_size(*src_size, max_side)

@@ -293,15 +293,19 @@ class _Runner:
 
     def _run(self) -> None:
         cfg = self.cfg
+        from cogs.preprocess.frames import display_rotation
+
         src = Path(cfg.input)
         stat = src.stat()
+        frame_params = {"input": str(src.resolve()), "size": stat.st_size if src.is_file() else None,
+                        "mtime": stat.st_mtime, "stride": cfg.stride, "limit": cfg.limit, "start": cfg.start,
+                        "max_side": cfg.max_side}
+        rotation = display_rotation(src)
+        if rotation:  # frames are turned upright (earlier versions cached them as stored)
+            frame_params["display_rotation"] = rotation
         with _Progress(cfg.progress) as ui:
             self._ui = ui
-            fr, fmeta = self._step(ui, 1, "frames", {
-                "input": str(src.resolve()), "size": stat.st_size if src.is_file() else None,
-                "mtime": stat.st_mtime, "stride": cfg.stride, "limit": cfg.limit, "start": cfg.start,
-                "max_side": cfg.max_side,
-            }, [], self._frames, compress=False)
+            fr, fmeta = self._step(ui, 1, "frames", frame_params, [], self._frames, compress=False)
             images = fr["images"]
             T, H, W, _ = images.shape
             self.source_size = tuple(fmeta["source_size"])
