@@ -81,6 +81,21 @@ def test_a_phone_clip_stored_on_its_side_is_read_upright(tmp_path, rotation, cor
     assert red[y, x].mean() > 200 and red.mean() < 60
 
 
+def test_photos_with_an_exif_orientation_are_read_upright(tmp_path):
+    from PIL import Image
+
+    img = np.zeros((48, 64, 3), np.uint8)
+    img[:10, :10] = (255, 0, 0)
+    exif = Image.Exif()
+    exif[0x0112] = 6  # "turn 90 degrees clockwise to display", as phones write portrait photos
+    for i in range(2):
+        Image.fromarray(img).save(tmp_path / f"{i}.jpg", exif=exif, quality=95)
+    fr = F.read_frames(tmp_path, max_side=None)
+    assert fr.images.shape == (2, 64, 48, 3) and fr.source_size == (48, 64)
+    assert F.probe(tmp_path) == (2, (48, 64))
+    assert fr.images[0, :10, -10:, 0].mean() > 200 and fr.images[0, ..., 0].mean() < 60  # top-right, as shown
+
+
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs to vary")
 def test_encoded_video_does_not_depend_on_how_many_cpus_the_encoder_sees(tmp_path):
     # libx264 picks its thread count from the CPUs it may use, and its output from that;

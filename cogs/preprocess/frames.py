@@ -94,6 +94,8 @@ def probe(source: str | Path, stride: int = 1, limit: int | None = None, start: 
             if files:
                 with Image.open(files[0]) as im:
                     size = (int(im.width), int(im.height))
+                    if im.getexif().get(0x0112) in (5, 6, 7, 8):  # EXIF orientations with a quarter turn
+                        size = size[::-1]
         elif source.is_file():
             import av
 
@@ -195,7 +197,7 @@ def _read_video(path: Path, stride, limit, max_side, start, on_frame) -> Frames:
 
 
 def _read_folder(path: Path, stride, limit, max_side, start, on_frame) -> Frames:
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image, ImageOps, UnidentifiedImageError
 
     files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
     if not files:
@@ -208,8 +210,8 @@ def _read_folder(path: Path, stride, limit, max_side, start, on_frame) -> Frames
     images, size, src_size = [], None, None
     for k, f in enumerate(files):
         try:
-            with Image.open(f) as im:
-                rgb = np.asarray(im.convert("RGB"))
+            with Image.open(f) as im:  # upright by its EXIF orientation, as viewers show it (phone photos)
+                rgb = np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
         except (UnidentifiedImageError, OSError) as e:
             raise UserError(f"cannot read image {f}: {e}") from None
         if size is None:
