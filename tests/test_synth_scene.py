@@ -253,7 +253,8 @@ def test_a_scene_too_large_for_the_memory_is_refused_before_any_work(tmp_path, m
 
 def test_the_memory_estimate_is_above_what_generating_a_scene_takes(tmp_path):
     """The generator's peak, measured on a real run in a fresh process (ru_maxrss of the
-    child), is below the estimate the refusal uses, and not far below it."""
+    child), is below the estimate the refusal uses, and not far below it (a fresh clone's first
+    run, compiling numba's kernels, measured 1,345,268 kB against 1,094,184 kB warm)."""
     import subprocess
     import sys
 
@@ -266,4 +267,4 @@ def test_the_memory_estimate_is_above_what_generating_a_scene_takes(tmp_path):
     res = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "s")], capture_output=True, text=True, check=True)
     measured = int(res.stdout.split()[-1]) * 1024  # kB on Linux
     estimate = peak_bytes(SynthConfig(frames=3, width=512, height=384))
-    assert measured <= estimate <= 1.5 * measured, (measured, estimate)
+    assert measured <= estimate <= 1.75 * measured, (measured, estimate)
