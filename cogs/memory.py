@@ -1,6 +1,6 @@
-"""How much memory this process may still use (for the up-front checks of `cogs train`
-and `cogs synth`, which refuse work that cannot fit instead of meeting the kernel's
-out-of-memory killer)."""
+"""How much memory this process may still use (for the up-front checks of `cogs train`,
+`cogs synth` and `cogs preprocess`, which refuse work that cannot fit instead of meeting
+the kernel's out-of-memory killer)."""
 
 from __future__ import annotations
 

@@ -292,9 +292,9 @@ class _Runner:
         return arrays, meta
 
     def _run(self) -> None:
-        cfg = self.cfg
         from cogs.preprocess.frames import display_rotation
 
+        cfg = self.cfg
         src = Path(cfg.input)
         stat = src.stat()
         frame_params = {"input": str(src.resolve()), "size": stat.st_size if src.is_file() else None,
