@@ -82,16 +82,6 @@ class Model(torch.nn.Module):
     def counts(self) -> dict[str, int]:
         return {n: (len(self.branches[n]) if n in self.branches else 0) for n in REGISTRY}
 
-    def _apply(self, fn, *args, **kwargs):
-        # The human's body model is shared and kept out of the module tree: move it along.
-        out = super()._apply(fn, *args, **kwargs)
-        h = self.human
-        if h is not None:
-            dev = h.means.device
-            if h.body.device != dev:
-                object.__setattr__(h, "body", load_body_model(h.body.name, dev))
-        return out
-
     # -- rendering ------------------------------------------------------------------------
     def prepare(self, branches: tuple[str, ...] | None = None) -> dict[str, Any]:
         """Each branch's per-step shared work (the human's decoded field)."""

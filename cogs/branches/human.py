@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from cogs.body import BodyModel, lbs_gaussians
+from cogs.body import BodyModel, lbs_gaussians, load_body_model
 from cogs.branches.base import Branch, Splats, register
 from cogs.branches.gaussians import GaussianSet, inverse_sigmoid, rgb_to_sh0
 from cogs.branches.shading import Irradiance
@@ -460,6 +460,15 @@ class HumanBranch(Branch):
             (1 - u) * self.pose_delta[k : k + 1] + u * self.pose_delta[k + 1 : k + 2],
             (1 - u) * self.transl_delta[k : k + 1] + u * self.transl_delta[k + 1 : k + 2],
         )
+
+    def _apply(self, fn, *args, **kwargs):
+        # The body model is kept out of the module tree (shared, not checkpointed): moving the
+        # branch on its own (the trainer moves each branch it builds) must move it along.
+        out = super()._apply(fn, *args, **kwargs)
+        dev = self.means.device
+        if self.body.device != dev:
+            object.__setattr__(self, "body", load_body_model(self.body.name, dev))
+        return out
 
     def posed(self, pose: Tensor, transl: Tensor, state: HumanState | None = None) -> HumanState:
         """Skin the canonical Gaussians into the world for one pose ([1, J, 3], [1, 3])."""
