@@ -509,3 +509,17 @@ def test_visibility_saturates_at_the_full_frame_count(body_model):
     torch.testing.assert_close(scores[0][seen], torch.full((len(seen),), 1 / 3))
     assert torch.all(scores[1][seen] == 1)
     assert scores[0][back].max() == 0 and scores[1][back].max() == 0
+
+
+def test_moving_the_human_branch_alone_moves_its_body_model(body_model):
+    """The body model is kept out of the module tree (shared, not checkpointed); the trainer
+    moves each branch it builds on its own, so `branch.to(device)` must move the body too
+    (on CUDA it did not, and the first visibility pass failed). The meta device stands in
+    for a GPU here; the CUDA test in test_model.py trains there."""
+    cfg = HumanConfig(n_gaussians=500, triplane_resolution=8, triplane_channels=4)
+    seed = sample_human_seed(body_model, None, cfg, seed=0)
+    human = HumanBranch(body_model, body_model.default_shape, seed, torch.zeros(2, 104, 3), torch.zeros(2, 3), cfg)
+    assert human.body.device.type == "cpu"
+    human.to("meta")
+    assert human.means.device.type == "meta" and human.body.device.type == "meta"
+    assert body_model.device.type == "cpu"  # the shared host model itself stays where it was
