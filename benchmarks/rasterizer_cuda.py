@@ -6,7 +6,7 @@ Usage:  python benchmarks/rasterizer_cuda.py [--quick] [--repeats R]
 Needs a CUDA device and the ``[cuda]`` extra (gsplat); without them it prints a JSON object
 saying what is missing and exits 0, so the script is safe anywhere. (Written on a machine
 without a GPU and exercised there only with the CPU standing in for CUDA; no GPU run of it
-is recorded yet.) Progress goes to stderr;
+is recorded yet: the first lease, 2026-11-27, went to the CUDA tests and the demo.) Progress goes to stderr;
 the last stdout line is one JSON object.
 
 Scenes are ``cogs.render.scenes.splat_scene`` (as in benchmarks/rasterizer.py: all
