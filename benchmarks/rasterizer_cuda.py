@@ -4,10 +4,9 @@ the numba CPU backend on the same machine's host cores for scale, and their agre
 Usage:  python benchmarks/rasterizer_cuda.py [--quick] [--repeats R]
 
 Needs a CUDA device and the ``[cuda]`` extra (gsplat); without them it prints a JSON object
-saying what is missing and exits 0, so the script is safe anywhere. (Written on a machine
-without a GPU and exercised there only with the CPU standing in for CUDA; no GPU run of it
-is recorded yet: the first lease, 2026-11-27, went to the CUDA tests and the demo.) Progress goes to stderr;
-the last stdout line is one JSON object.
+saying what is missing and exits 0, so the script is safe anywhere. Its first run, on an
+H200: docs/experiments/2026-11-27-first-cuda-run.md. Progress goes to stderr; the last
+stdout line is one JSON object.
 
 Scenes are ``cogs.render.scenes.splat_scene`` (as in benchmarks/rasterizer.py: all
 Gaussians in the frustum, 3-sigma radii ~2-10 px), at the CPU benchmark's sizes and at two
