@@ -279,7 +279,8 @@ POSITIVE = CADENCES + (
 SIGNED = ("branches.human.seed_inset_m",)
 """Numbers that may be negative."""
 
-FRACTIONS = ("branches.human.held_out_input_weight", "object_appearance_warmup", "branches.object.min_confidence")
+FRACTIONS = ("branches.human.held_out_input_weight", "branches.object.held_out_input_weight", "object_appearance_warmup",
+             "branches.object.min_confidence")
 """Settings in [0, 1] besides every `*_fraction`."""
 
 MAX_SH_DEGREE = 3
@@ -293,6 +294,10 @@ ADDED: dict[tuple[str, str], str] = {
     ("HumanConfig", "held_out_adaptive"): "held-out frames may keep a share of their input's motion decided per bone "
                                           "from the clip's own noise; off, as before (2026-11-27)",
     ("HumanConfig", "held_out_noise_factor"): "the adaptive held-out share's noise multiple (2026-11-27)",
+    ("ObjectConfig", "held_out_input_weight"): "held-out frames' object poses may follow a share of their own "
+                                               "initial pose; off, as before (models saved before it also count every "
+                                               "frame as trained) (2026-11-27)",
+    ("ObjectConfig", "held_out_max_gap"): "the reach of a held-out object pose's interpolation (2026-11-27)",
 }
 """(dataclass, key) of settings added after runs were written: an older config.yaml that
 lacks one takes its default, which reproduces what that run did (or, for a new stage,

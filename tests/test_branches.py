@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -341,19 +342,19 @@ def test_rest_losses_hold_a_resting_object_still_and_leave_the_motion():
 
 
 def test_held_out_interpolation_weights_reproduce_cubic_motion():
-    from cogs.branches.human import _lagrange_neighbours
+    from cogs.branches.held_out import lagrange_neighbours
 
     trained = [t not in (0, 6, 12) for t in range(20)]
-    frames, w = _lagrange_neighbours(6, trained, per_side=2, max_gap=3)
+    frames, w = lagrange_neighbours(6, trained, per_side=2, max_gap=3)
     assert frames == [4, 5, 7, 8]
     x, w = torch.tensor(frames, dtype=torch.float64), torch.tensor(w, dtype=torch.float64)
     for f in (lambda s: 1.0 + 0 * s, lambda s: s, lambda s: s**3 - 2 * s**2):
         torch.testing.assert_close((w * f(x)).sum(), f(torch.tensor(6.0, dtype=torch.float64)))
     # one side only (the clip's first frame) or nothing within reach: no interpolation
-    assert _lagrange_neighbours(0, trained, 2, 3) is None
+    assert lagrange_neighbours(0, trained, 2, 3) is None
     far = [t in (2, 15) for t in range(20)]
-    assert _lagrange_neighbours(8, far, 2, 3) is None
-    assert _lagrange_neighbours(7, trained, 1, 3)[0] == [5, 8]  # nearest trained on each side
+    assert lagrange_neighbours(8, far, 2, 3) is None
+    assert lagrange_neighbours(7, trained, 1, 3)[0] == [5, 8]  # nearest trained on each side
 
 
 def _jittered_human(body_model, T: int = 40, jitter: float = 0.03, seed: int = 0, speed: float = 0.15,
@@ -437,15 +438,15 @@ def test_adaptive_held_out_share_follows_the_clips_own_noise(body_model):
 def test_adaptive_held_out_share_never_falls_below_the_fixed_one(body_model):
     """`held_out_input_weight` is the adaptive share's floor: a jittering slow input keeps
     exactly it; a fast, clean one keeps more on some bone."""
-    from cogs.branches.human import _detail, _lagrange_neighbours
+    from cogs.branches.held_out import detail, lagrange_neighbours
     from cogs.geometry.rotations import axis_angle_to_quat, quat_sign_continuous
 
     for speed, jitter in ((0.15, 0.03), (0.9, 0.003)):
         h, _, test = _jittered_human(body_model, jitter=jitter, speed=speed, input_weight=0.3, adaptive=True)
         shares = []
         for t in test[1:]:
-            nb = _lagrange_neighbours(t, h._trained, h.cfg.held_out_neighbours, h.cfg.held_out_max_gap)
-            d, d_t = _detail(quat_sign_continuous(axis_angle_to_quat(h.base_pose)), h.base_transl, t, nb)
+            nb = lagrange_neighbours(t, h._trained, h.cfg.held_out_neighbours, h.cfg.held_out_max_gap)
+            d, d_t = detail(quat_sign_continuous(axis_angle_to_quat(h.base_pose)), h.base_transl, t, nb)
             w, w_t = h._input_shares(d, d_t)
             shares.append(w[h.refined_bones])
             assert float(w.min()) >= 0.3 - 1e-6 and float(w_t) >= 0.3 - 1e-6
@@ -523,3 +524,73 @@ def test_moving_the_human_branch_alone_moves_its_body_model(body_model):
     human.to("meta")
     assert human.means.device.type == "meta" and human.body.device.type == "meta"
     assert body_model.device.type == "cpu"  # the shared host model itself stays where it was
+
+
+def _bounced_object(weight: float, confidence: float, held: int = 10, T: int = 21):
+    """An object moving along a straight line whose initial pose at frame `held` (outside
+    the training split) is 0.2 m above the line and turned 30 degrees: a bounce between
+    training frames that the keyframed trajectory, fitted to the line, does not show."""
+    from cogs.branches.object import ObjectBranch, ObjectConfig, fit_initial_trajectory
+    from cogs.geometry.rotations import axis_angle_to_quat
+
+    line_t = torch.arange(T, dtype=torch.float32)[:, None] * torch.tensor([0.05, 0.0, 0.0]) + torch.tensor([0.0, 0.0, 2.0])
+    line_q = axis_angle_to_quat(torch.arange(T, dtype=torch.float32)[:, None] * torch.tensor([0.0, 0.02, 0.0]))
+    cfg = ObjectConfig(held_out_input_weight=weight)
+    key_times, p, v, q = fit_initial_trajectory(line_t.double(), line_q.double(), cfg)
+    prior_t, prior_q = line_t.clone(), line_q.clone()
+    prior_t[held] += torch.tensor([0.0, 0.2, 0.0])
+    bump = axis_angle_to_quat(torch.tensor([0.0, 0.0, math.radians(30.0)]))
+    from cogs.geometry.rotations import quat_multiply
+
+    prior_q[held] = quat_multiply(bump, prior_q[held])
+    trained = torch.ones(T, dtype=torch.bool)
+    trained[held] = False
+    conf = torch.ones(T)
+    conf[held] = confidence
+    pts = 0.1 * torch.randn(50, 3, generator=torch.Generator().manual_seed(0))
+    gs = GaussianSet.from_points(pts, torch.full_like(pts, 0.5), torch.full((50, 3), 0.01))
+    obj = ObjectBranch(gs, torch.zeros(3), key_times, p, v, q, prior_t, prior_q, cfg, trained=trained, confidence=conf)
+    return obj, prior_t, prior_q, line_t, line_q
+
+
+def test_a_held_out_object_pose_follows_its_own_initial_pose_by_weight_and_confidence():
+    """A held-out frame moves from the trajectory to its own initial pose by the weight
+    times its confidence; a lost frame (confidence below `min_confidence`) and every
+    training frame stay on the trajectory."""
+    from cogs.geometry.rotations import quat_geodesic_angle
+
+    held = 10
+    with torch.no_grad():
+        for weight, conf, share in ((1.0, 1.0, 1.0), (1.0, 0.5, 0.5), (0.5, 1.0, 0.5), (0.0, 1.0, 0.0), (1.0, 0.1, 0.0)):
+            obj, prior_t, prior_q, line_t, line_q = _bounced_object(weight, conf, held)
+            on_line_t, on_line_q = obj.pose(torch.tensor([float(held)]))
+            assert float((on_line_t[0] - line_t[held]).norm()) < 1e-3  # the trajectory misses the bounce
+            tr, q = obj.frame_pose(held)
+            assert torch.allclose(tr, line_t[held] + share * torch.tensor([0.0, 0.2, 0.0]), atol=2e-3), (weight, conf, tr)
+            turned = math.degrees(float(quat_geodesic_angle(q[None], on_line_q)))
+            assert abs(turned - 30.0 * share) < 0.5, (weight, conf, turned)
+            for t in (held - 1, held + 1, 0):
+                a, b = obj.frame_pose(t), obj.pose(torch.tensor([float(t)]))
+                assert torch.equal(a[0], b[0][0]) and torch.equal(a[1], b[1][0])
+            all_t, all_q = obj.frame_poses()
+            assert torch.allclose(all_t[held], tr) and torch.allclose(all_q[held], q)
+
+
+def test_object_held_out_frames_survive_a_save_and_an_older_state_keeps_the_trajectory():
+    """The training split and confidences are saved with the branch; a state written
+    before they existed loads with every frame trained (posed on the trajectory, as then)."""
+    from cogs.branches.object import ObjectBranch
+    from cogs.config import TrainConfig
+
+    obj, *_ = _bounced_object(1.0, 1.0)
+    state = {k: v.clone() for k, v in obj.state_dict().items()}
+    branches = TrainConfig().branches
+    branches.object.held_out_input_weight = 1.0
+    again = ObjectBranch.from_state(state, branches)
+    assert torch.equal(again.trained, obj.trained) and torch.equal(again.input_confidence, obj.input_confidence)
+    with torch.no_grad():
+        assert torch.allclose(again.frame_pose(10)[0], obj.frame_pose(10)[0])
+        older = {k: v for k, v in state.items() if k not in ("trained", "input_confidence")}
+        old = ObjectBranch.from_state(older, branches)
+        assert bool(old.trained.all())
+        assert torch.equal(old.frame_pose(10)[0], old.pose(torch.tensor([10.0]))[0][0])

@@ -145,3 +145,24 @@ def test_lost_frames_drop_the_object_mask_terms_but_keep_the_full_frame_rgb(smal
         assert ("compose.decomp_object" in h) == (h["frame"] not in lost), h
         if single_stage:
             assert ("object.silhouette" in h) == (h["frame"] not in lost), h
+
+
+def test_the_object_branch_records_the_training_split_and_each_frames_confidence(small_synthetic, tmp_path):
+    """What a held-out frame's object pose is decided from (`ObjectConfig.held_out_input_weight`)
+    is taken from the scene when the branch is built: the frames of the training split and
+    each frame's object confidence."""
+    from cogs.branches.build import build_object
+    from cogs.config import TrainConfig
+
+    scene_dir = tmp_path / "conf"
+    shutil.copytree(small_synthetic, scene_dir)
+    n = len(json.loads((scene_dir / "scene.json").read_text())["frames"])
+    conf = np.linspace(0.0, 1.0, n)
+    _set_confidence(scene_dir, conf)
+    scene = load_scene(scene_dir)
+    obj = build_object(scene, TrainConfig().branches, "cpu")
+    in_split = np.zeros(n, bool)
+    in_split[list(scene.split["train"])] = True
+    assert 0 < in_split.sum() < n
+    np.testing.assert_array_equal(obj.trained.numpy(), in_split)
+    np.testing.assert_allclose(obj.input_confidence.numpy(), conf, atol=1e-6)

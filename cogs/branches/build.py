@@ -170,7 +170,10 @@ def build_object(scene: Scene, cfg: BranchesConfig, backend: str = "auto",
     scales = torch.tensor([0.7, 0.7, 0.25], device=CPU) * voxel
     g = GaussianSet.from_points(xyz, torch.full_like(xyz, 0.5), scales.expand(len(xyz), 3).clone(),
                                 opacity=ocfg.init_opacity, quats=quats, sh_degree=ocfg.sh_degree)
-    obj = ObjectBranch(g, _host(centre, torch.float64), key_times, p, v, q, prior_t, prior_q, ocfg)
+    in_split = torch.zeros(scene.n_frames, dtype=torch.bool, device=CPU)
+    in_split[list(scene.split["train"])] = True
+    obj = ObjectBranch(g, _host(centre, torch.float64), key_times, p, v, q, prior_t, prior_q, ocfg,
+                       trained=in_split, confidence=_host(scene.object_confidence))
 
     frames = _frames_for_color(train, cfg.color_init_frames)
     images, weight, w2c, Ks = _frame_tensors(scene, frames, person=False)

@@ -29,11 +29,11 @@ from torch import Tensor
 from cogs.body import BodyModel, lbs_gaussians, load_body_model
 from cogs.branches.base import Branch, Splats, register
 from cogs.branches.gaussians import GaussianSet, inverse_sigmoid, rgb_to_sh0
+from cogs.branches.held_out import as_tensors, blend, detail, lagrange_neighbours
 from cogs.branches.shading import Irradiance
 from cogs.branches.surgery import SPLIT_SHRINK, BranchGaussians, Geometry
 from cogs.geometry.rotations import (
     axis_angle_to_quat,
-    quat_conjugate,
     quat_geodesic_angle,
     quat_multiply,
     quat_normalize,
@@ -381,17 +381,17 @@ class HumanBranch(Branch):
         `held_out_max_gap` (the clip's ends) keeps its corrected input. No image of frame t
         is looked at; its input pose is, as an estimator's output for every frame.
         """
-        nb = _lagrange_neighbours(t, self._trained, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
+        nb = lagrange_neighbours(t, self._trained, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
         if nb is None:
             dp, dt = self._refinement(float(t))
             return self.base_pose[t : t + 1].index_add(1, self.refined_bones, dp), self.base_transl[t : t + 1] + dt
         quats, transl = self._fitted_poses()
         q_in = quat_sign_continuous(axis_angle_to_quat(self.base_pose))
-        q, tr = _blend(quats, transl, *_as_tensors(nb, transl))
-        detail, detail_t = _detail(q_in, self.base_transl, t, nb)
-        w, w_t = self._input_shares(detail, detail_t)
-        q = quat_multiply(axis_angle_to_quat(w[:, None] * detail), q)
-        return quat_to_axis_angle(q)[None], (tr + w_t * detail_t)[None]
+        q, tr = blend(quats, transl, *as_tensors(nb, transl))
+        d, d_t = detail(q_in, self.base_transl, t, nb)
+        w, w_t = self._input_shares(d, d_t)
+        q = quat_multiply(axis_angle_to_quat(w[:, None] * d), q)
+        return quat_to_axis_angle(q)[None], (tr + w_t * d_t)[None]
 
     def _input_shares(self, detail: Tensor, detail_t: Tensor) -> tuple[Tensor, Tensor]:
         """Share of a held-out frame's input detail kept per bone [J] and for the
@@ -430,11 +430,11 @@ class HumanBranch(Branch):
         for t in (k for k, trained in enumerate(self._trained) if trained):
             others = list(self._trained)
             others[t] = False
-            nb = _lagrange_neighbours(t, others, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
+            nb = lagrange_neighbours(t, others, self.cfg.held_out_neighbours, self.cfg.held_out_max_gap)
             if nb is None:
                 continue
-            d_in, dt_in = _detail(q_in, self.base_transl, t, nb)
-            d_fit, dt_fit = _detail(quats, transl, t, nb)
+            d_in, dt_in = detail(q_in, self.base_transl, t, nb)
+            d_fit, dt_fit = detail(quats, transl, t, nb)
             sq += (d_in[major] - d_fit[major]).square().sum(-1)
             sq_t += (dt_in - dt_fit).square().sum()
             n += 1
@@ -588,48 +588,6 @@ class HumanGaussians(BranchGaussians):
         out["seed_means"] = out["seed_means"] + offsets  # the prior moves with the child
         out["seed_scales"] = out["seed_scales"] / SPLIT_SHRINK
         return out
-
-
-def _lagrange_neighbours(t: int, trained: list[bool], per_side: int, max_gap: int) -> tuple[list[int], list[float]] | None:
-    """(frames [n], weights [n]) interpolating frame t from the nearest trained frames on
-    each side (up to `per_side` each, at most `max_gap` away; the same number on both
-    sides): the Lagrange polynomial through them evaluated at t. None without a trained
-    frame on both sides."""
-    T = len(trained)
-    before = [k for k in range(t - 1, max(t - max_gap, 0) - 1, -1) if trained[k]][:per_side]
-    after = [k for k in range(t + 1, min(t + max_gap, T - 1) + 1) if trained[k]][:per_side]
-    n = min(len(before), len(after))
-    if n == 0:
-        return None
-    xs = before[:n][::-1] + after[:n]
-    w = []
-    for i, xi in enumerate(xs):
-        li = 1.0
-        for j, xj in enumerate(xs):
-            if j != i:
-                li *= (t - xj) / (xi - xj)
-        w.append(li)
-    return xs, w
-
-
-def _blend(quats: Tensor, transl: Tensor, frames: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
-    """Weighted blend of per-frame rotations [T, J, 4] (sign-continuous, normalised after
-    the weighted sum; fine for the small steps between nearby frames) and translations."""
-    q = torch.nn.functional.normalize((weights[:, None, None] * quats[frames]).sum(0), dim=-1)
-    return q, (weights[:, None] * transl[frames]).sum(0)
-
-
-def _as_tensors(nb: tuple[list[int], list[float]], like: Tensor) -> tuple[Tensor, Tensor]:
-    """`_lagrange_neighbours`' (frames, weights) as tensors on `like`'s device."""
-    return (torch.tensor(nb[0], device=like.device),
-            torch.tensor(nb[1], dtype=torch.float32, device=like.device))
-
-
-def _detail(quats: Tensor, transl: Tensor, t: int, nb: tuple[list[int], list[float]]) -> tuple[Tensor, Tensor]:
-    """How frame t's pose departs from the interpolation of its neighbours `nb`: per-bone
-    rotation [J, 3] (axis-angle of q_t q_interp^-1) and translation [3]."""
-    q, tr = _blend(quats, transl, *_as_tensors(nb, transl))
-    return quat_to_axis_angle(quat_multiply(quats[t], quat_conjugate(q))), transl[t] - tr
 
 
 _MIN_NOISE_FRAMES = 5

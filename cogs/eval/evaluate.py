@@ -344,7 +344,7 @@ def _body_pose_error(human, scene, train: list[int], test: list[int]) -> dict:
 
 
 def _object_pose_error(obj, gt_track, test: list[int], train: list[int]) -> dict:
-    """Translation (m) and rotation (deg) error of the learned trajectory vs ground truth.
+    """Translation (m) and rotation (deg) error of the learned object poses vs ground truth.
 
     The object's canonical frame is only defined up to a constant rigid transform: the
     canonical Gaussians and the trajectory can trade one (a box modelled 3 degrees turned
@@ -354,10 +354,10 @@ def _object_pose_error(obj, gt_track, test: list[int], train: list[int]) -> dict
     R_t^T (t*_t - t_t)); the error is then measured on the held-out frames. The raw,
     unaligned errors are reported beside it.
     """
-    T = len(gt_track)
+    assert len(gt_track) == obj.n_frames, "one ground-truth pose per frame"
     cpu = torch.device("cpu")
     with torch.no_grad():
-        tr, q = obj.pose(torch.arange(T, dtype=torch.float32, device=obj.centre.device))
+        tr, q = obj.frame_poses()  # the poses rendered: held-out frames as `ObjectBranch.frame_pose` has them
     R = quat_to_rotmat(q).double().cpu()
     Rg = quat_to_rotmat(torch.as_tensor(gt_track.quats, device=cpu)).double()
     tg = torch.as_tensor(gt_track.translations, device=cpu).double()
