@@ -126,7 +126,7 @@ def test_fused_ssim_matches_the_torch_reference_in_value_and_gradient(shape):
     fused = loss_ssim(pred, gt)
     assert fused.grad_fn is not None and "Fused" in type(fused.grad_fn).__name__  # the kernels, not the fallback
     (g_fused,) = torch.autograd.grad(3.0 * fused, pred)  # an upstream gradient other than 1
-    assert float(fused.detach()) == pytest.approx(float(ref), abs=1e-5)
+    assert float(fused.detach()) == pytest.approx(float(ref.detach()), abs=1e-5)
     assert float((g_fused.double() - 3.0 * g_ref).abs().max()) <= 1e-4 * 3.0 * float(g_ref.abs().max())
 
 
