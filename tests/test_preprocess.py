@@ -1223,3 +1223,42 @@ def test_a_clip_too_long_for_the_memory_is_refused_naming_a_stride_a_limit_and_a
         check_fits("clip.mp4", 1000, (3840, 2160), 3840, 1, None)  # 4K kept at full size: a smaller size fits
     side = int(str(e.value).split("--max-side ")[1].split()[0].rstrip("."))
     assert 64 <= side < 3840 and peak_bytes(1000, *output_size(3840, 2160, side)) <= 6 * GiB
+
+
+def _walked_past_cameras(k: float, T: int = 6):
+    """Inputs of `world.align_sfm` for a camera moving sideways past a person standing 3 m
+    ahead with the feet 1.5 m below it, in an SfM reconstruction whose units are `k` per
+    metre (camera y down, z forward; SfM world axes = the first camera's)."""
+    from cogs.preprocess import world as Wd
+
+    K = np.array([[200.0, 0, 128], [0, 200.0, 96], [0, 0, 1]])
+    w2c = np.tile(np.eye(4), (T, 1, 1))
+    w2c[:, 0, 3] = -0.1 * k * np.arange(T)  # centres at (0.1 t k, 0, 0)
+    feet_cam = np.tile(np.array([[0.0, 1.5, 3.0]]) + np.array([[0.05, 0, 0]]) * np.arange(4)[:, None], (T, 1, 1))
+    kp2d = np.zeros((T, 33, 3))
+    for i, j in enumerate(Wd.FOOT_LANDMARKS):
+        uvw = feet_cam[:, i] @ K.T
+        kp2d[:, j, :2], kp2d[:, j, 2] = uvw[:, :2] / uvw[:, 2:], 1.0
+    up_cam = np.tile([0.0, -1.0, 0.0], (T, 1))
+    root_cam = np.tile([0.0, 0.5, 3.0], (T, 1))
+    rng = np.random.default_rng(0)
+    ground = np.c_[rng.uniform(-2, 2, 300), np.full(300, 1.5), rng.uniform(1, 6, 300)] * k
+    return w2c, np.ones(T, bool), ground, K, kp2d, up_cam, feet_cam, root_cam
+
+
+def test_the_world_scale_comes_from_the_ground_and_its_absence_is_warned(caplog):
+    """With the floor among the reconstructed points the metric scale is recovered from the
+    feet on it; without any point the SfM units are kept, and the user is told so."""
+    import logging
+
+    from cogs.preprocess import world as Wd
+
+    w2c, reg, ground, K, kp2d, up_cam, feet_cam, root_cam = _walked_past_cameras(k=4.0)
+    with caplog.at_level(logging.WARNING, logger="cogs.preprocess.world"):
+        al = Wd.align_sfm(w2c, reg, ground, K, kp2d, up_cam, feet_cam, root_cam)
+    assert al.scale == pytest.approx(0.25, rel=0.02) and "scale" not in al.notes
+    assert not [r for r in caplog.records if "scale is unknown" in r.getMessage()]
+    with caplog.at_level(logging.WARNING, logger="cogs.preprocess.world"):
+        al = Wd.align_sfm(w2c, reg, np.zeros((0, 3)), K, kp2d, up_cam, feet_cam, root_cam)
+    assert al.scale == 1.0 and al.notes["scale"].startswith("unknown")
+    assert [r for r in caplog.records if "scale is unknown" in r.getMessage() and "floor" in r.getMessage()]

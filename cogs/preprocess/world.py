@@ -167,6 +167,11 @@ def align_sfm(
         if scale is None:
             scale = 1.0
             notes["scale"] = "unknown: no ground plane and no points near the feet; SfM units kept"
+            log.warning("the world's scale is unknown: no ground plane among the reconstructed points and none "
+                        "near the person's feet, so the camera reconstruction's units are kept as metres. The "
+                        "metric body and the scene can then disagree by a large factor (a hand-held clip with the "
+                        "floor out of view: the guitar clip's were ~25x off) and training fails; a clip showing the "
+                        "floor round the person's feet gives the scale")
         # Ground through the feet, normal to up.
         feet_w = centres[fok] + rays[fok] * (np.linalg.norm(foot_pos[fok], axis=1) / scale)[:, None]
         n = up
