@@ -415,3 +415,21 @@ def _dilate(mask: np.ndarray, r: int) -> np.ndarray:
     from scipy.ndimage import binary_dilation
 
     return binary_dilation(mask, iterations=r)
+
+
+def test_ctrl_c_while_the_scene_is_still_being_sent_stops_the_server_and_exits_cleanly(run, monkeypatch):
+    """The server answers before the scene is sent: a Ctrl-C in between (a user quick on the
+    keys, or the test above when the host is slow) stops it and exits 0, not 130 with the
+    port left open."""
+    from cogs.use.view import View, Viewer
+
+    def interrupted(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Viewer, "_build_scene", interrupted)
+    port = free_port()
+    assert View(run_dir=run, port=port).run() == 0
+    deadline = time.monotonic() + 10
+    while not port_is_free(port):
+        assert time.monotonic() < deadline, f"port {port} still held after the interrupted start"
+        time.sleep(0.2)

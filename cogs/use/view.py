@@ -60,7 +60,11 @@ class View(PlaybackOptions):
     browser's aspect."""
 
     def run(self) -> int:
-        viewer = self.start()
+        try:
+            viewer = self.start()
+        except KeyboardInterrupt:  # Ctrl-C while it was still loading or sending the scene
+            log.info("stopping the viewer")
+            return 0
         try:
             log.info("cogs view: open http://%s:%d (%d steps at %g fps; Ctrl-C stops)",
                      _url_host(self.host), viewer.port, viewer.n, viewer.play.fps)
@@ -205,6 +209,14 @@ class Viewer:
         if self.port != port:  # taken between the check and the bind
             self.server.stop()
             raise UserError(f"--port {port}: already in use on {host}; choose another --port")
+        try:  # the server already answers: whatever stops the set-up below also stops it
+            self._set_up(play)
+        except BaseException:
+            self.server.stop()
+            raise
+
+    def _set_up(self, play) -> None:
+        """The scene, the controls, the first camera and the worker threads, once serving."""
         self.server.scene.set_up_direction(tuple(float(x) for x in play.up))
         self._cond = threading.Condition()
         self._stop = False
