@@ -531,7 +531,7 @@ def _bounced_object(weight: float, confidence: float, held: int = 10, T: int = 2
     the training split) is 0.2 m above the line and turned 30 degrees: a bounce between
     training frames that the keyframed trajectory, fitted to the line, does not show."""
     from cogs.branches.object import ObjectBranch, ObjectConfig, fit_initial_trajectory
-    from cogs.geometry.rotations import axis_angle_to_quat
+    from cogs.geometry.rotations import axis_angle_to_quat, quat_multiply
 
     line_t = torch.arange(T, dtype=torch.float32)[:, None] * torch.tensor([0.05, 0.0, 0.0]) + torch.tensor([0.0, 0.0, 2.0])
     line_q = axis_angle_to_quat(torch.arange(T, dtype=torch.float32)[:, None] * torch.tensor([0.0, 0.02, 0.0]))
@@ -540,8 +540,6 @@ def _bounced_object(weight: float, confidence: float, held: int = 10, T: int = 2
     prior_t, prior_q = line_t.clone(), line_q.clone()
     prior_t[held] += torch.tensor([0.0, 0.2, 0.0])
     bump = axis_angle_to_quat(torch.tensor([0.0, 0.0, math.radians(30.0)]))
-    from cogs.geometry.rotations import quat_multiply
-
     prior_q[held] = quat_multiply(bump, prior_q[held])
     trained = torch.ones(T, dtype=torch.bool)
     trained[held] = False

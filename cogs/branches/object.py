@@ -194,9 +194,14 @@ class ObjectBranch(Branch):
         return tr[0], q[0]
 
     def frame_poses(self) -> tuple[Tensor, Tensor]:
-        """`frame_pose` of every frame: (translations [T, 3], quaternions [T, 4])."""
-        poses = [self.frame_pose(t) for t in range(self.n_frames)]
-        return torch.stack([p[0] for p in poses]), torch.stack([p[1] for p in poses])
+        """`frame_pose` of every frame: (translations [T, 3], quaternions [T, 4]); the
+        trajectory sampled once, then the held-out frames moved."""
+        tr, q = self.pose(torch.arange(self.n_frames, dtype=torch.float32, device=self.centre.device))
+        if self.cfg.held_out_input_weight > 0:
+            tr, q = tr.clone(), q.clone()
+            for t in (k for k, trained in enumerate(self._trained) if not trained):
+                tr[t], q[t] = self.held_out_pose(t, tr[t], q[t])
+        return tr, q
 
     def held_out_pose(self, t: int, tr: Tensor, q: Tensor) -> tuple[Tensor, Tensor]:
         """The trajectory's pose (tr, q) at held-out frame t moved by w (d_in - d_fit): d_in
@@ -204,10 +209,11 @@ class ObjectBranch(Branch):
         training frames' initial poses, d_fit the same for the trajectory, and w =
         `held_out_input_weight` x the frame's confidence (0 below `min_confidence`, or
         without a training frame on each side within `held_out_max_gap`)."""
-        w = self.cfg.held_out_input_weight * float(self.input_confidence[t])
+        conf = float(self.input_confidence[t])
         nb = lagrange_neighbours(t, self._trained, 1, self.cfg.held_out_max_gap)
-        if nb is None or float(self.input_confidence[t]) < self.cfg.min_confidence:
+        if nb is None or conf < self.cfg.min_confidence:
             return tr, q
+        w = self.cfg.held_out_input_weight * conf
         frames = torch.tensor(nb[0] + [t], device=self.centre.device)
         fit_t, fit_q = self.pose(frames.float())
         # Both rotation sequences sign-continuous along (neighbours..., t), J = 1 bone.
