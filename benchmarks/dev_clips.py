@@ -11,9 +11,11 @@ composite's "Input View" label, which a crop below it would take with the loader
 
 Each clip is preprocessed (``cogs preprocess``, in a subprocess, so a failure is the
 command's own message) with the prompts a user would draw: a box on the object on one
-frame, and for the clip with two people a box on the person to follow. The boxes are in
-pixels of the input video and were drawn by looking at the clips' frames; nothing else
-is set per clip.
+frame, and for the clip with two people a box on the person to follow. With
+``--second-prompt``, the clips whose strip shows the track leaving the object get the
+second box a user would then draw (``SECOND_PROMPTS``; tracking restarts from it). The
+boxes are in pixels of the input video and were drawn by looking at the clips' frames;
+nothing else is set per clip.
 
 Writes ``WORK/<clip>/strip.png``: ten frames spread over the clip (two rows of five), the person's mask in
 cyan and the object's in magenta, each frame labelled with its object confidence
@@ -42,6 +44,13 @@ CLIPS = {
     "bottle": ("bottle.webm", ["--stride", "2", "--object-box", "0", "370", "925", "410", "1020"]),
     "guitar": ("guitar.webm", ["--stride", "2", "--object-box", "0", "270", "330", "810", "590"]),
     "loading": ("loading", ["--object-box", "12", "280", "145", "415", "240", "--person-box", "0", "330", "90", "530", "360"]),
+}
+# The box a user adds (`--second-prompt`) where the first prompt's track leaves the
+# object in the strip: the TV box's front face once it is tilted towards the camera (the
+# first prompt is its top face), the bottle in the hands (the first is on the floor).
+SECOND_PROMPTS = {
+    "loading": ["--object-box", "55", "325", "91", "528", "145"],
+    "bottle": ["--object-box", "44", "310", "400", "356", "506"],
 }
 
 
@@ -92,6 +101,8 @@ def main() -> None:
     ap.add_argument("--only", nargs="*", default=None, help="clip names to run (default: all)")
     ap.add_argument("--max-side", type=int, default=384, help="longer side of the processed frames")
     ap.add_argument("--strips-only", action="store_true", help="redraw the strips of scenes already in WORK")
+    ap.add_argument("--second-prompt", action="store_true",
+                    help="add the second --object-box of SECOND_PROMPTS on the clips that have one (the others run as without)")
     args = ap.parse_args()
     results = {}
     for name, (file, options) in CLIPS.items():
@@ -110,6 +121,8 @@ def main() -> None:
             continue
         cmd = [sys.executable, "-m", "cogs.cli", "preprocess", str(src), "--out", str(work / "scene"), "--overwrite",
                "--max-side", str(args.max_side), "--no-progress", "--force", *options]
+        if args.second_prompt:
+            cmd += SECOND_PROMPTS.get(name, [])
         t0 = time.perf_counter()
         done = subprocess.run(cmd, capture_output=True, text=True)
         seconds = round(time.perf_counter() - t0, 1)
@@ -120,7 +133,7 @@ def main() -> None:
             print(f"{name}: preprocess failed ({last})")
             results[name] = {"failed": last, "seconds": seconds}
             continue
-        row = strip(work / "scene", work / "strip.png") | {"seconds": seconds}
+        row = strip(work / "scene", work / "strip.png") | {"seconds": seconds, "prompts": 1 + (args.second_prompt and name in SECOND_PROMPTS)}
         results[name] = row
         print(f"{name}: {row}")
     print(json.dumps(results))

@@ -347,6 +347,78 @@ def test_hand_regions_cover_the_fingers_but_not_the_forearm_far_away():
     assert not hand_regions(kp, (120, 160)).any()
 
 
+def test_a_convex_objects_mask_keeps_the_pieces_inside_its_outline_and_drops_the_others():
+    from cogs.preprocess.tracking import drop_stray_pieces
+
+    H, W = 120, 160
+    yy, xx = np.mgrid[:H, :W]
+    ball = (xx - 60) ** 2 + (yy - 50) ** 2 <= 15**2
+    split = ball & ~(np.abs(xx - 62) <= 2)  # an arm in front: two halves
+    kept = drop_stray_pieces(split, ball.sum())
+    assert (kept == split).all()
+    shoe = (np.abs(xx - 70) <= 12) & (np.abs(yy - 95) <= 5)  # carried along from a touch
+    kept = drop_stray_pieces(ball | shoe, ball.sum())
+    assert (kept == ball).all()
+    assert (drop_stray_pieces(ball, ball.sum()) == ball).all()
+
+
+def test_a_prompt_whose_surroundings_share_its_colours_is_warned_about():
+    from cogs.preprocess.prompts import MAX_LOOKALIKE_SURROUNDINGS, parse_prompts, lookalike_prompt_warning
+
+    images, gt, person = _object_clip()
+    share = {}
+    O.propagate_masks(images, gt[0], 0, human_probs=(person * 255).astype(np.uint8), lookalike=share)
+    assert share[0] < 0.05  # an orange disc on a grey texture
+    # A pale object on a floor of its own greys: most of what surrounds it looks like it.
+    floor = np.random.default_rng(1).integers(120, 200, size=images.shape[1:3])[..., None].repeat(3, -1)
+    pale = images.copy()
+    pale[:] = floor
+    pale[gt] = np.random.default_rng(2).integers(150, 215, size=(int(gt.sum()), 1)).repeat(3, -1)
+    share = {}
+    O.propagate_masks(pale[:2], gt[0], 0, lookalike=share)
+    assert share[0] > 2 * MAX_LOOKALIKE_SURROUNDINGS
+    prompt = parse_prompts((0, 10, 20, 30, 40), None, None)[0][0]
+    assert lookalike_prompt_warning(prompt, 0.05) is None
+    text = lookalike_prompt_warning(prompt, share[0])
+    assert "--object-box 0 10 20 30 40" in text and "frame 0" in text and "--sam2-checkpoint" in text
+
+
+def _kicked_ball_clip(T=10, H=160, W=160):
+    """Grass, a leg (person) ending in a white shoe, and a white ball with dark spots that
+    drops onto the shoe (frames 3-4) and flies back up; MediaPipe-like keypoints on the
+    right foot (ankle, heel, toe)."""
+    ys = (60, 85, 108, 124, 127, 100, 72, 50, 40, 36)
+    bg = (_texture(H, W, seed=4) // 3 + np.array([40, 90, 30])).clip(0, 255).astype(np.uint8)
+    yy, xx = np.mgrid[:H, :W]
+    leg = (np.abs(xx - 80) < 9) & (yy > 30) & (yy < 132)
+    shoe = ((xx + 0.5 - 82) / 14) ** 2 + ((yy + 0.5 - 138) / 7) ** 2 <= 1
+    images, gt, person = [], [], []
+    kp = np.full((T, 33, 3), np.nan)
+    for t in range(T):
+        im = bg.copy()
+        im[leg], im[shoe] = (30, 35, 70), (240, 240, 240)
+        ball = (xx + 0.5 - 80) ** 2 + (yy + 0.5 - ys[t]) ** 2 <= 10**2
+        im[ball] = (245, 245, 245)
+        im[ball & (((xx - 80) // 4 + (yy - ys[t]) // 4) % 3 == 0)] = (60, 60, 60)
+        images.append(im)
+        gt.append(ball)
+        person.append((leg | shoe) & ~ball)
+        kp[t, [28, 30, 32]] = [[80, 131, 1.0], [69, 139, 1.0], [96, 140, 1.0]]
+    return np.stack(images), np.stack(gt), (np.stack(person) * 255).astype(np.uint8), kp
+
+
+def test_a_ball_kicked_off_a_shoe_of_its_colour_is_followed_not_the_shoe(monkeypatch):
+    from cogs.preprocess.tracking import _Tracker
+
+    images, gt, person, kp = _kicked_ball_clip()
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp)
+    assert min(_iou(masks[t], gt[t]) for t in (5, 6, 7)) > 0.8
+    # Without the feet the track stays on the shoe as the ball flies off.
+    monkeypatch.setattr(_Tracker, "_feet_mask", lambda self, t: np.zeros(self.images.shape[1:3], bool))
+    masks, _ = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp)
+    assert _iou(masks[5], gt[5]) < 0.2
+
+
 def _held_object_clip(T=8, H=180, W=200, new_face_from=None, hidden=(), speed=9, decoy=None, pan=0):
     """A textured background with a blue strip at the bottom, an arm (person) reaching in
     from the left, its hand holding an orange square by the left side and carrying it to

@@ -480,7 +480,7 @@ class _Runner:
             conf = masks.reshape(T, -1).any(1).astype(np.float64)
             update(T)
         else:
-            from cogs.preprocess.prompts import box_mask, small_prompt_warning
+            from cogs.preprocess.prompts import box_mask, lookalike_prompt_warning, small_prompt_warning
 
             scaled = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.positives]
             scaled_neg = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.negatives]
@@ -504,8 +504,14 @@ class _Runner:
                     small = small_prompt_warning(p, int(prompts[k].sum()), (W, H), cfg.max_side)
                     if small:
                         log.warning("%s", small)
+                lookalike: dict[int, float] = {}
                 masks, conf = O.propagate_masks(images, list(prompts.values()), list(prompts), human_probs=pe["probs"], kp2d=pe["kp2d"],
-                                                negatives=negative, cues=cues, sources=sources, on_frame=lambda n: update(n))
+                                                negatives=negative, cues=cues, sources=sources, lookalike=lookalike,
+                                                on_frame=lambda n: update(n))
+                for p in self.positives:
+                    text = lookalike_prompt_warning(p, lookalike[p.frame])
+                    if text:
+                        log.warning("%s", text)
         if not masks.any():
             raise UserError("the object masks are empty in every frame (check --object-box / --object-masks)")
         n = int(masks.reshape(T, -1).any(1).sum())

@@ -193,6 +193,25 @@ def small_prompt_warning(prompt: BoxPrompt, pixels: int, size: tuple[int, int], 
             "'The development clips')")
 
 
+# The share of an object prompt's surroundings that may look like it before the user is
+# warned: 0.24 on the bottle clip (a transparent bottle on a grey floor, whose track stays
+# on the floor); 0.003-0.15 on the other development clips' prompts (second prompts
+# included), 0.001-0.002 on the synthetic video benchmark's box at two settings
+# (docs/experiments/2026-11-27-tracker-feet-and-pieces.md).
+MAX_LOOKALIKE_SURROUNDINGS = 0.2
+
+
+def lookalike_prompt_warning(prompt: BoxPrompt, share: float) -> str | None:
+    """The warning for an object prompt whose surroundings look like it (``share``: see
+    ``tracking.propagate_masks``'s ``lookalike``), or None."""
+    if share < MAX_LOOKALIKE_SURROUNDINGS:
+        return None
+    return (f"{prompt.option} {prompt.text}: {share:.0%} of what surrounds the object on frame {prompt.frame} has its colours "
+            "(a transparent or small object on a like-coloured background); the classical tracker may follow that "
+            "background once the object moves: draw the box where the object stands against other colours, add an "
+            f"{POSITIVE} on a later frame, or give --sam2-checkpoint")
+
+
 def box_mask(box: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """[H, W] bool: the pixels whose centres lie in ``box`` (x0, y0, x1, y1, processed pixels)."""
     H, W = shape

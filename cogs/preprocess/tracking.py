@@ -27,11 +27,15 @@ of three cues that holds (``_Tracker._step``):
    tentative until the next frame sees it move with the hand.
 
 Otherwise the object is hidden and the frame's mask is empty. Then every run of empty
-frames that ends where the object was found again is tracked back into from there.
+frames that ends where the object was found again is tracked back into from there. A
+convex object (a prompt mask of solidity >= 0.9: a ball, a box, a bottle) is kept to
+the pieces of its mask that fit its outline (``drop_stray_pieces``).
 
 Hands matter throughout: a handled object is always next to one, the fingers cover it, and
 a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
-(wrist, pinky, index and thumb points of each hand).
+(wrist, pinky, index and thumb points of each hand). So do the feet for a kicked ball
+(``foot_regions``: ankle, heel and toe): a motion fit lying mostly on them yields to any
+place the colour search would take with the feet counted 5x less.
 """
 
 from __future__ import annotations
@@ -62,6 +66,8 @@ log = logging.getLogger(__name__)
 
 # MediaPipe pose landmarks of each hand (left, right): elbow, wrist, pinky, index, thumb.
 _HAND_LANDMARKS = ((13, 15, 17, 19, 21), (14, 16, 18, 20, 22))
+# ... and of each foot: ankle, heel, toe (foot index).
+_FOOT_LANDMARKS = ((27, 29, 31), (28, 30, 32))
 # Frames back along a pass whose static scene a frame is compared with: near ones see the
 # same view, far ones see what the person and the object covered in the near ones.
 _SCENE_OFFSETS = (1, 2, 4, 8, 12)
@@ -308,6 +314,29 @@ def hand_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float =
     return out
 
 
+def foot_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float = 0.5) -> np.ndarray:
+    """Pixels the visible feet (shoes) may cover -> [H, W] bool, from one frame's MediaPipe
+    keypoints [33, 3]: the triangle of each foot's ankle, heel and toe points grown by
+    0.4 x the foot's length (heel to toe), which takes in the shoe's width and sole.
+    """
+    import cv2
+
+    H, W = shape
+    out = np.zeros((H, W), bool)
+    for idx in _FOOT_LANDMARKS:
+        k = kp[list(idx)]
+        if not np.isfinite(k).all() or k[:, 2].min() < min_visibility:
+            continue
+        length = float(np.linalg.norm(k[2, :2] - k[1, :2]))
+        if length < 1.0:
+            continue
+        one = np.zeros((H, W), np.uint8)
+        cv2.fillConvexPoly(one, np.round(k[:, :2]).astype(np.int32).reshape(-1, 1, 2), 1)
+        grow = max(1, int(round(0.4 * length)))
+        out |= cv2.dilate(one, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)) > 0
+    return out
+
+
 def _visible(hands: np.ndarray | None, t: int, h: int | None) -> bool:
     return hands is not None and h is not None and bool(np.isfinite(hands[t, h]).all()) and hands[t, h, 2] >= 0.5
 
@@ -378,6 +407,32 @@ def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float, convex: bo
     if solidity(piece) < 0.7:
         return np.zeros((H, W), bool)
     return convex_hull(piece) if convex else piece
+
+
+def drop_stray_pieces(mask: np.ndarray, area: float, grow: float = 1.5) -> np.ndarray:
+    """A convex object's mask without the pieces that cannot belong to it -> [H, W] bool.
+
+    The largest piece stays. Another piece stays only while the convex hull of it and the
+    pieces kept so far covers at most ``grow`` x the larger of ``area`` (the object's
+    usual extent, pixels) and the largest piece's hull: the parts of an object cut in two
+    by a finger or an arm in front of it lie within its outline, a shoe or a trouser leg
+    the motion fit carried along from a frame where they touched it does not (the juggled
+    ball; docs/experiments/2026-11-27-tracker-feet-and-pieces.md). Pieces are tried
+    largest first.
+    """
+    import cv2
+
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 2:
+        return mask
+    order = 1 + np.argsort(-stats[1:, cv2.CC_STAT_AREA])
+    kept = comp == order[0]
+    limit = grow * max(float(area), float(convex_hull(kept).sum()))
+    for k in order[1:]:
+        both = kept | (comp == k)
+        if convex_hull(both).sum() <= limit:
+            kept = both
+    return kept
 
 
 def move_with_hand(mask: np.ndarray, kp0: np.ndarray, kp1: np.ndarray, hand: int) -> np.ndarray:
@@ -547,6 +602,22 @@ class _Tracker:
         self.masks: np.ndarray | None = None  # [T, H, W] bool: the frames found so far (``run``'s masks)
         self._scene_maps: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}
 
+    def lookalike_surroundings(self, k: int, mask: np.ndarray) -> float:
+        """The share of the band around prompt k's ``mask`` (as wide as half the object,
+        off the person) that the prompt's own colour model calls object (probability >
+        0.5): near 0 for an object that stands out, a quarter for a transparent bottle
+        on a grey floor, whose track then stays on the floor."""
+        import cv2
+
+        _, size = mask_stats(mask)
+        r = max(3, int(0.5 * float(size.max())))
+        band = (cv2.dilate(mask.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0) & ~mask
+        if self.human_probs is not None:
+            band &= self.human_probs[k] <= 127
+        if not band.any():
+            return 0.0
+        return float((self.appearance[k][0].prob(self.images[k])[band] > 0.5).mean())
+
     def use(self, k: int) -> None:
         """Track from prompt k: its colour model, colour evidence, area, size and shape."""
         self.base_model, self.ref_score, self.ref_area, self.convex, self.s0 = self.appearance[k]
@@ -621,6 +692,11 @@ class _Tracker:
             return np.zeros(self.images.shape[1:3], bool)
         return hand_regions(self.kp2d[t], self.images.shape[1:3])
 
+    def _feet_mask(self, t: int) -> np.ndarray:
+        if self.kp2d is None:
+            return np.zeros(self.images.shape[1:3], bool)
+        return foot_regions(self.kp2d[t], self.images.shape[1:3])
+
     # -- passes -----------------------------------------------------------------------
 
     def run(self, start: int, direction: int, masks: np.ndarray, conf: np.ndarray, cues: list, fill: bool = False, on_frame=None,
@@ -667,6 +743,9 @@ class _Tracker:
                 st.pending = None
             if fill and not f.visible.any():
                 break
+            if self.convex and f.extent.any():  # one convex piece (a ball, a box, a bottle)
+                f.extent = drop_stray_pieces(f.extent, st.area)
+                f.visible = f.visible & f.extent
             masks[t], conf[t], cues[t] = f.visible, min(f.confidence, self.resemblance(t, f.visible)), f.cue
             if f.visible.any():
                 model = self._update(st, t, direction, f, model)
@@ -812,10 +891,22 @@ class _Tracker:
             # hand by construction.
             looks = looks or (st.pending is not None and found.cue != "carried")
             # ... and no clearly better-looking place elsewhere (the fit held on to a
-            # look-alike while the object moved away, e.g. a hand after a bounce).
+            # look-alike while the object moved away, e.g. a hand after a bounce). A fit
+            # lying mostly on the feet (white shoes a white ball was kicked off) yields to
+            # any place elsewhere the colour search below would take.
             centre, score, _ = locate(prob_search, st, hands_t, floor)
             far = np.linalg.norm(centre - mask_stats(found.visible)[0]) > 0.5 * float(np.hypot(*st.size))
             better = far and score > 1.3 * found.colour and score >= self.min_score * self.ref_score
+            feet = self._feet_mask(t)
+            if not better and (found.visible & feet).sum() >= 0.5 * found.visible.sum():
+                # Off the feet, the search counts them 5x less, like the hands.
+                off_feet = prob_search.copy()
+                off_feet[feet] *= 0.2
+                centre, score, plausible = locate(off_feet, st, hands_t, floor)
+                far = np.linalg.norm(centre - mask_stats(found.visible)[0]) > 0.5 * float(np.hypot(*st.size))
+                better = far and score >= self.min_score * self.ref_score * (1.3 - 0.6 * plausible)
+                if better:
+                    prob_search = off_feet
             if looks and not better:
                 return found
 
@@ -922,6 +1013,7 @@ def propagate_masks(
     on_frame=None,
     negatives: dict[int, np.ndarray] | None = None,
     sources: list | None = None,
+    lookalike: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Propagate one frame's object mask, or several frames' masks, through the video (see
     the module docstring; several prompts: ``combine_passes``).
@@ -942,6 +1034,8 @@ def propagate_masks(
     the hand cue looks for it. ``cues``: a list that receives the cue that found each
     frame ("prompt", "stay", "features", "flow", "carried", "colour", "hand" or "").
     ``sources``: a list that receives the prompt frame each frame's result comes from.
+    ``lookalike``: a dict that receives, per prompt frame, the share of the prompt's
+    surroundings that looks like the object (``_Tracker.lookalike_surroundings``).
 
     Returns (masks [T, H, W] bool, confidence [T] in [0, 1]; 0 where the object was lost).
     """
@@ -964,6 +1058,8 @@ def propagate_masks(
                        prompts=prompts, negatives=negatives)
     for k in frames:
         masks[k], conf[k], found[k], origin[k] = prompts[k], 1.0, "prompt", k
+        if lookalike is not None:
+            lookalike[k] = tracker.lookalike_surroundings(k, prompts[k])
     done = [len(frames)]
 
     def tick():
