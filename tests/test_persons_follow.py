@@ -160,3 +160,46 @@ def test_with_several_people_and_no_box_one_is_chosen_and_followed_alone(two_ali
     for k in np.flatnonzero(track.detected):
         assert _share(track.masks[k], second[k]) < 0.02, f"frame {k}: the mask took the other person"
     assert track.detected.sum() >= 10
+
+
+@pytest.fixture(scope="module")
+def headless(default_scene_dir):
+    """Twelve frames of the synthetic benchmark with the top quarter of the person (the
+    head and neck) painted grey, as in a clip framed from the shoulders down."""
+    pytest.importorskip("mediapipe", reason="mediapipe is in the optional `preprocess` extra")
+    from PIL import Image
+
+    frames = range(0, 48, 4)
+    images = np.stack([np.asarray(Image.open(default_scene_dir / "images" / f"{t:06d}.png").convert("RGB")) for t in frames])
+    human = np.stack([np.asarray(Image.open(default_scene_dir / "masks" / "human" / f"{t:06d}.png")) > 127 for t in frames])
+    for t in range(len(images)):
+        ys, xs = np.nonzero(human[t])
+        cut = ys.min() + int(0.25 * (ys.max() - ys.min()))
+        images[t, :cut, max(0, xs.min() - 8) : xs.max() + 8] = 127
+        human[t, :cut] = False
+    return images, human
+
+
+def test_a_body_is_followed_from_a_box_by_the_landmark_model_alone(headless):
+    from cogs.preprocess.persons import follow_body
+
+    images, human = headless
+    track = follow_body(images, 0, _box(human[0]))
+    assert track.detected.sum() >= 10
+    ious = [(track.masks[t] & human[t]).sum() / (track.masks[t] | human[t]).sum() for t in np.flatnonzero(track.detected)]
+    assert np.median(ious) > 0.65 and min(ious) > 0.4, ious  # 0.51-0.82 seen
+    for t in np.flatnonzero(track.detected):
+        hips = track.kp2d[t, [23, 24], :2].mean(0)
+        assert human[t][int(hips[1]), int(hips[0])], f"frame {t}: the hips are off the body"
+    assert (track.kp2d[track.detected, :11, 2] == 0).all()  # the face it cannot see is left out
+    assert np.isnan(track.kp2d[~track.detected]).all()
+
+
+def test_a_box_on_no_body_follows_nobody(headless):
+    """(A random texture that the model's presence score passes on one frame is refused
+    by the track's own check: test_preprocess's test_pipeline_refuses_frames_without_a_person.)"""
+    from cogs.preprocess.persons import follow_body
+
+    images, _ = headless
+    H, W = images.shape[1:3]
+    assert not follow_body(images[:4], 0, np.array([W - 60, H - 50, W, H], float)).detected.any()

@@ -929,8 +929,9 @@ def test_body_parts_are_named_for_anny_and_smpl_bones():
     from cogs.preprocess.bodymasks import bone_parts
 
     names = ["root", "spine01", "upperarm01.L", "lowerarm01.L", "lowerarm02.R", "wrist.R", "finger3-1.L", "metacarpal2.R",
-             "left_shoulder", "left_elbow", "right_wrist", "left_hand", "head"]
-    assert bone_parts(names).tolist() == [0, 0, 0, 1, 1, 2, 2, 2, 0, 1, 2, 2, 0]
+             "left_shoulder", "left_elbow", "right_wrist", "left_hand", "head", "pelvis.L", "upperleg02.R", "lowerleg01.L",
+             "foot.R", "toe2-1.L", "left_hip", "right_knee", "left_ankle", "right_foot", "pelvis"]
+    assert bone_parts(names).tolist() == [0, 0, 0, 1, 1, 2, 2, 2, 0, 1, 2, 2, 0, 0, 3, 3, 3, 3, 3, 3, 3, 3, 0]
 
 
 def _body_masks_frame():

@@ -52,6 +52,7 @@ import numpy as np
 BINS = 16  # per channel, for the colour models
 ARM_WORDS = ("lowerarm", "forearm", "elbow")
 HAND_WORDS = ("wrist", "hand", "finger", "metacarpal", "thumb", "index", "middle", "ring", "pinky")
+LEG_WORDS = ("upperleg", "lowerleg", "foot", "toe", "_hip", "knee", "ankle")  # Anny's and SMPL's
 PERSON_P = 0.6  # colour posterior needed to add a forearm pixel / to call an object pixel a finger
 MAX_REMOVED = 1.0 / 3.0
 BLEED_P = 0.2  # colour posterior of the person below which a person pixel off the fitted body is scene
@@ -65,7 +66,7 @@ KEEP_AREA = 0.85  # a held object's mask below this share of the previous frame'
 
 
 def bone_parts(bone_names: list[str]) -> np.ndarray:
-    """Per bone: 0 other, 1 forearm, 2 hand (by name, for any body model)."""
+    """Per bone: 0 other, 1 forearm, 2 hand, 3 leg (by name, for any body model)."""
     out = np.zeros(len(bone_names), np.int64)
     for i, n in enumerate(bone_names):
         n = n.lower()
@@ -73,11 +74,13 @@ def bone_parts(bone_names: list[str]) -> np.ndarray:
             out[i] = 2
         elif any(w in n for w in ARM_WORDS):
             out[i] = 1
+        elif any(w in n for w in LEG_WORDS):
+            out[i] = 3
     return out
 
 
 def body_parts(model, shape, pose, transl, world_to_camera, K, width: int, height: int) -> np.ndarray:
-    """[T, H, W] uint8 label of the fitted mesh in every frame: 0 none, 1 body, 2 forearm, 3 hand."""
+    """[T, H, W] uint8 label of the fitted mesh in every frame: 0 none, 1 body, 2 forearm, 3 hand, 4 leg."""
     import torch
 
     from cogs.data.synth.raster import rasterize
@@ -141,7 +144,8 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
     """The pixels to add to one frame's object mask because they move with it, not with the person.
 
     `flow` [H, W, 2] is the flow from this frame back to the previous one, `arm` the fitted
-    forearm and hand (neither a sample of the person's motion nor a candidate)."""
+    forearms, hands and legs (neither a sample of the person's motion nor a candidate:
+    they move with what they hold or kick)."""
     add = np.zeros_like(obj)
     area = int(obj.sum())
     if area < 100:
@@ -185,7 +189,7 @@ def motion_grow(images: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
                 detected: np.ndarray) -> tuple[np.ndarray, int]:
     """Every frame's object mask grown by `motion_grow_frame` (see the module docstring); (masks, pixels added)."""
     obj = obj.copy()
-    arm = parts >= 2
+    arm = parts >= 2  # forearms, hands and legs
     grey = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in images]
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     added = 0
@@ -261,7 +265,7 @@ def refine_frame(image: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
                 obj &= ~finger
                 info["finger_px"] = int(finger.sum())
     # The forearm into the person mask.
-    arm = (parts >= 2) & ~person & ~obj
+    arm = ((parts == 2) | (parts == 3)) & ~person & ~obj
     if person_edges and arm.any() and person.any():
         near = cv2.dilate((person | body).astype(np.uint8), _disk(max(3, round(0.025 * side)))) > 0
         p_person = _posterior(image, _hist(image, person & ~obj), _hist(image, ~near & ~obj))

@@ -35,8 +35,8 @@ from cogs.errors import UserError
 log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
-TRACKER_VERSION = 3  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
-MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
+TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
+MASKS_VERSION = 4  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
 OBJECT_POSE_VERSION = 4  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
@@ -325,9 +325,10 @@ class _Runner:
             pe, pmeta = self._step(ui, 2, "persons", person_params, ["frames"], lambda lb: self._persons(lb, ui, images))
             self.person_choice = pmeta.get("stats", {}).get("followed")  # chosen among several people, or None
             if not pe["detected"].any():
-                raise UserError(f"no person detected in any of the {T} frames of {src} (MediaPipe finds a person by the "
-                                "face: the head must be in view, and large enough at --max-side "
-                                f"{cfg.max_side}, in the frames)")
+                raise UserError(f"no person detected in any of the {T} frames of {src}, neither by MediaPipe's detector "
+                                "(it finds a person by the face) nor by its landmark model around "
+                                f"{'the --person-box' if self.person else 'the whole first frame'}: give --person-box "
+                                f"FRAME X0 Y0 X1 Y1 around the person, or a larger --max-side (now {cfg.max_side})")
 
             has_object = bool(self.positives) or cfg.object_masks is not None
             ob_params = {**self._prompt_params(), "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint),
@@ -440,6 +441,8 @@ class _Runner:
                             "nearest the object's box" if near else "nearest the centre",
                             " ".join(f"{v:g}" for v in followed[1:]), k)
                 track = follow_person(images, k, box, on_frame=lambda n: update(n), mask_threshold=self.cfg.person_threshold)
+        if not track.detected.any():
+            track = self._body_without_face(images, size, update)
         if self.cfg.refine_person_masks and self.cfg.sam2_checkpoint is None:
             import cv2
 
@@ -466,6 +469,25 @@ class _Runner:
             log.warning("no person found in %d frame(s): %s%s; the body there is interpolated",
                         len(missing), missing[:10], "..." if len(missing) > 10 else "")
         return track.arrays(), meta
+
+    def _body_without_face(self, images, size, update):
+        """MediaPipe's detector found nobody (it finds people by the face): the body's
+        landmarks tracked from the --person-box, or from the whole frame, by the landmark
+        model alone (``persons.follow_body``)."""
+        from cogs.preprocess.objects import scale_box
+        from cogs.preprocess.persons import follow_body
+
+        T, H, W = images.shape[:3]
+        if self.person is not None:
+            frame, box, where = self.person.frame, scale_box(self.person.box, self.source_size, size), f"the {self.person.option} box"
+        else:
+            frame, box, where = 0, np.array([0.0, 0.0, W, H]), "the whole of frame 0"
+        track = follow_body(images, frame, box, on_frame=lambda k: update(k), mask_threshold=self.cfg.person_threshold)
+        if track.detected.any():
+            log.warning("MediaPipe's person detector found nobody (it finds people by the face: is the head out of view?); "
+                        "the body was followed from %s by the landmark model alone, in %d of %d frames, without the "
+                        "face's keypoints", where, int(track.detected.sum()), T)
+        return track
 
     def _objects(self, label, ui, images, pe):
         from cogs.preprocess import objects as O
