@@ -69,7 +69,9 @@ class Preprocess:
     the input video, on frame FRAME (default 0). That person alone is followed from frame
     to frame; the others become part of the scene. Without it, when several people are in
     view, the one whose hands are nearest the first --object-box (else the one nearest
-    the centre) is followed, with a warning naming the box."""
+    the centre) is followed, with a warning naming the box. When the person detector
+    finds nobody (it needs the face), the body is tracked from this box (else from the
+    whole first frame) without the face."""
 
     object_masks: Path | None = None
     """Folder of ready-made object masks (one image per frame, sorted by name; white =
