@@ -35,6 +35,7 @@ from cogs.errors import UserError
 log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
+PERSONS_VERSION = 2  # of the persons step (2: a body the detector cannot find is followed without the face)
 TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 5  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
 OBJECT_POSE_VERSION = 4  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
@@ -319,7 +320,8 @@ class _Runner:
 
                 check_against_frames(boxes, self.source_size, T)
 
-            person_params = {"threshold": cfg.person_threshold, "refine": cfg.refine_person_masks, "sam2": str(cfg.sam2_checkpoint)}
+            person_params = {"version": PERSONS_VERSION, "threshold": cfg.person_threshold, "refine": cfg.refine_person_masks,
+                             "sam2": str(cfg.sam2_checkpoint)}
             if self.person:  # only then, so that caches made before the option stay valid
                 person_params["person_box"] = self.person.record()
             pe, pmeta = self._step(ui, 2, "persons", person_params, ["frames"], lambda lb: self._persons(lb, ui, images))
