@@ -52,8 +52,6 @@ import numpy as np
 BINS = 16  # per channel, for the colour models
 ARM_WORDS = ("lowerarm", "forearm", "elbow")
 HAND_WORDS = ("wrist", "hand", "finger", "metacarpal", "thumb", "index", "middle", "ring", "pinky")
-LEG_WORDS = ("lowerleg", "foot", "toe", "knee", "ankle")  # below the knee, Anny's and SMPL's
-THIGH_WORDS = ("upperleg", "_hip")
 PERSON_P = 0.6  # colour posterior needed to add a forearm pixel / to call an object pixel a finger
 MAX_REMOVED = 1.0 / 3.0
 BLEED_P = 0.2  # colour posterior of the person below which a person pixel off the fitted body is scene
@@ -67,7 +65,7 @@ KEEP_AREA = 0.85  # a held object's mask below this share of the previous frame'
 
 
 def bone_parts(bone_names: list[str]) -> np.ndarray:
-    """Per bone: 0 other, 1 forearm, 2 hand, 3 lower leg and foot, 4 thigh (by name, for any body model)."""
+    """Per bone: 0 other, 1 forearm, 2 hand (by name, for any body model)."""
     out = np.zeros(len(bone_names), np.int64)
     for i, n in enumerate(bone_names):
         n = n.lower()
@@ -75,16 +73,11 @@ def bone_parts(bone_names: list[str]) -> np.ndarray:
             out[i] = 2
         elif any(w in n for w in ARM_WORDS):
             out[i] = 1
-        elif any(w in n for w in LEG_WORDS):
-            out[i] = 3
-        elif any(w in n for w in THIGH_WORDS):
-            out[i] = 4
     return out
 
 
 def body_parts(model, shape, pose, transl, world_to_camera, K, width: int, height: int) -> np.ndarray:
-    """[T, H, W] uint8 label of the fitted mesh in every frame: 0 none, 1 body, 2 forearm, 3 hand, 4 lower leg
-    and foot, 5 thigh."""
+    """[T, H, W] uint8 label of the fitted mesh in every frame: 0 none, 1 body, 2 forearm, 3 hand."""
     import torch
 
     from cogs.data.synth.raster import rasterize
@@ -148,8 +141,7 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
     """The pixels to add to one frame's object mask because they move with it, not with the person.
 
     `flow` [H, W, 2] is the flow from this frame back to the previous one, `arm` the fitted
-    limbs that move with what they hold or kick (neither a sample of the person's motion
-    nor a candidate: see `_limbs`)."""
+    forearm and hand (neither a sample of the person's motion nor a candidate)."""
     add = np.zeros_like(obj)
     area = int(obj.sum())
     if area < 100:
@@ -193,6 +185,7 @@ def motion_grow(images: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
                 detected: np.ndarray) -> tuple[np.ndarray, int]:
     """Every frame's object mask grown by `motion_grow_frame` (see the module docstring); (masks, pixels added)."""
     obj = obj.copy()
+    arm = parts >= 2
     grey = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in images]
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     added = 0
@@ -211,9 +204,8 @@ def motion_grow(images: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
             back = cv2.remap(grown[t - 1].astype(np.uint8), mx, my, cv2.INTER_NEAREST) > 0
             col = cv2.remap(images[t - 1], mx, my, cv2.INTER_LINEAR)
             carried = back & (np.abs(col.astype(np.int16) - images[t].astype(np.int16)).max(2) <= 12)
-        arm = _limbs(obj[t], parts[t])
         for k in range(MOTION_ROUNDS):
-            add = motion_grow_frame(obj[t], person[t], arm, flow, carried if k == 0 else None)
+            add = motion_grow_frame(obj[t], person[t], arm[t], flow, carried if k == 0 else None)
             obj[t] |= add
             grown[t] |= add
             added += int(add.sum())
@@ -226,27 +218,9 @@ def motion_grow(images: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
     return obj, added
 
 
-def _limbs(obj: np.ndarray, parts: np.ndarray) -> np.ndarray:
-    """[H, W] bool: the fitted limbs that move with what they touch, so that their motion
-    says nothing of the person's and their pixels never join the object: the forearms,
-    the hands, the lower legs and feet (a ball kicked off the shin or the foot), and the
-    thighs too unless a fitted hand is at the object (within a quarter of its size): a
-    box held in front of the thighs is found there by its motion, a ball juggled off a
-    thigh is not the thigh. On the synthetic benchmark the thighs always left out cost
-    0.016 and 0.035 object IoU (docs/experiments/2026-11-27-tracker-feet-and-pieces.md)."""
-    limbs = (parts >= 2) & (parts <= 4)
-    if obj.any():
-        reach = max(2, round(0.25 * np.sqrt(obj.sum())))
-        near = cv2.dilate(obj.astype(np.uint8), _disk(reach)) > 0
-        if not (near & (parts == 3)).any():
-            limbs |= parts == 5
-    return limbs
-
-
 def _keep_area(person: np.ndarray, obj: np.ndarray, arm: np.ndarray, flow: np.ndarray,
                t: int) -> np.ndarray:
-    """Frame t's pixels to add from frame t-1's object mask where a held object shrank suddenly (see the module docstring);
-    `arm` [H, W] the limbs left out (`_limbs`)."""
+    """Frame t's pixels to add from frame t-1's object mask where a held object shrank suddenly (see the module docstring)."""
     cur, prev = obj[t], obj[t - 1]
     add = np.zeros_like(cur)
     if not prev.any() or cur.sum() >= KEEP_AREA * prev.sum():
@@ -260,7 +234,7 @@ def _keep_area(person: np.ndarray, obj: np.ndarray, arm: np.ndarray, flow: np.nd
     m = _fit_affine(xy, xy + flow[ys, xs])  # this frame -> the previous one
     H, W = cur.shape
     back = cv2.warpAffine(prev.astype(np.uint8), m.T, (W, H), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP) > 0
-    return _touching(back & person[t] & ~arm & ~cur, cur)
+    return _touching(back & person[t] & ~arm[t] & ~cur, cur)
 
 
 def refine_frame(image: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: np.ndarray, *, fingers: bool = True,
@@ -287,7 +261,7 @@ def refine_frame(image: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
                 obj &= ~finger
                 info["finger_px"] = int(finger.sum())
     # The forearm into the person mask.
-    arm = ((parts == 2) | (parts == 3)) & ~person & ~obj
+    arm = (parts >= 2) & ~person & ~obj
     if person_edges and arm.any() and person.any():
         near = cv2.dilate((person | body).astype(np.uint8), _disk(max(3, round(0.025 * side)))) > 0
         p_person = _posterior(image, _hist(image, person & ~obj), _hist(image, ~near & ~obj))

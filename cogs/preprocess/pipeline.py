@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 1
 PERSONS_VERSION = 2  # of the persons step (2: a body the detector cannot find is followed without the face)
 TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
-MASKS_VERSION = 5  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
+MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
 OBJECT_POSE_VERSION = 4  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
