@@ -557,7 +557,8 @@ class _PoseInRegion:
     distance, turned so that the second lies straight above the first.
     """
 
-    def __init__(self, mp):
+    def __init__(self):
+        import_mediapipe()  # the install check and its message
         from mediapipe.python.solution_base import PacketDataType, SolutionBase
 
         with _quiet_native_logs():
@@ -611,12 +612,11 @@ def follow_body(images: np.ndarray, frame: int, box, on_frame=None, mask_thresho
     framed from the shoulders down: all 87 frames, median 0.90, lowest 0.73); otherwise
     nobody is found in any frame.
     """
-    mp = import_mediapipe()
     T, H, W, _ = images.shape
     track = PersonTrack.empty(T, H, W)
     x0, y0, x1, y1 = np.asarray(box, np.float64)
     seed = (0.5 * (x0 + x1), 0.5 * (y0 + y1), 1.25 * max(x1 - x0, y1 - y0), 0.0)
-    model = _PoseInRegion(mp)
+    model = _PoseInRegion()
     done = 0
     try:
         for _ in range(settle):

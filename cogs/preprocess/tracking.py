@@ -307,10 +307,7 @@ def hand_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float =
         if palm < 1.0:
             continue
         hull = cv2.convexHull(np.array([w, p, i, th, 2 * p - w, 2 * i - w], np.float32).reshape(-1, 1, 2))
-        one = np.zeros((H, W), np.uint8)
-        cv2.fillConvexPoly(one, np.round(hull).astype(np.int32), 1)
-        grow = max(1, int(round(0.25 * palm)))
-        out |= cv2.dilate(one, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)) > 0
+        out |= _filled_and_grown(hull, 0.25 * palm, (H, W))
     return out
 
 
@@ -319,8 +316,6 @@ def foot_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float =
     keypoints [33, 3]: the triangle of each foot's ankle, heel and toe points grown by
     0.4 x the foot's length (heel to toe), which takes in the shoe's width and sole.
     """
-    import cv2
-
     H, W = shape
     out = np.zeros((H, W), bool)
     for idx in _FOOT_LANDMARKS:
@@ -330,11 +325,19 @@ def foot_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float =
         length = float(np.linalg.norm(k[2, :2] - k[1, :2]))
         if length < 1.0:
             continue
-        one = np.zeros((H, W), np.uint8)
-        cv2.fillConvexPoly(one, np.round(k[:, :2]).astype(np.int32).reshape(-1, 1, 2), 1)
-        grow = max(1, int(round(0.4 * length)))
-        out |= cv2.dilate(one, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1,) * 2)) > 0
+        out |= _filled_and_grown(k[:, :2], 0.4 * length, (H, W))
     return out
+
+
+def _filled_and_grown(polygon: np.ndarray, grow: float, shape: tuple[int, int]) -> np.ndarray:
+    """[H, W] bool: the convex ``polygon`` (pixel vertices) filled, then grown by a disc of
+    ``grow`` pixels (at least 1)."""
+    import cv2
+
+    one = np.zeros(shape, np.uint8)
+    cv2.fillConvexPoly(one, np.round(polygon).astype(np.int32).reshape(-1, 1, 2), 1)
+    r = max(1, int(round(grow)))
+    return cv2.dilate(one, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
 
 
 def _visible(hands: np.ndarray | None, t: int, h: int | None) -> bool:
