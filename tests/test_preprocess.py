@@ -1179,6 +1179,35 @@ def test_object_fit_takes_a_resting_objects_depth_from_the_moving_camera():
     assert depth_err.max() < 0.02, depth_err
 
 
+def test_object_fit_keeps_one_rotation_while_the_object_rests():
+    # A box whose proportions lie between the proxy's candidates, resting with no hand at it:
+    # fitted frame by frame, each view's best proxy pose turned its own way (the wrong shape
+    # fits each outline differently); at rest the frames share one rotation in the world.
+    from cogs.preprocess.objectfit import cuboid_points, fit_object, rest_windows, silhouette
+
+    T, H, W = 12, 240, 320
+    K = S.intrinsics(W, H, 400.0)
+    centre = np.array([0.2, 0.0, 0.9])
+    w2c = _circling(T)
+    R_box = _rot_about(np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]), 40.0) @ _rot(0, 30.0)
+    corners = cuboid_points(np.array([0.15, 0.12, 0.05])) @ R_box.T + centre
+    masks = np.stack([silhouette(corners @ w[:3, :3].T + w[:3, 3], K, (H, W)) for w in w2c])
+    cam_centres = -np.einsum("tji,tj->ti", w2c[:, :3, :3], w2c[:, :3, 3])
+    away = centre - cam_centres
+    root = centre + away / np.linalg.norm(away, axis=1, keepdims=True)
+    hand = np.tile([-0.8, 0.0, 1.6], (T, 4, 1))
+    fit = fit_object(masks, np.ones(T), K, w2c, hand, root, ground=(np.array([0.0, 0.0, 1.0]), 0.0))
+    assert fit.depth_source == ["rest"] * T
+    R = fit.track.rotation_matrices()
+    turn = np.degrees(np.arccos(np.clip((np.einsum("tij,ij->t", R, R[0]) - 1) / 2, -1, 1)))
+    assert turn.max() < 0.5, turn
+    assert np.nanmin(fit.iou) > 0.8, fit.iou
+    # Windows are runs of frames at one point.
+    X = np.full((7, 3), np.nan)
+    X[1:3], X[3:5] = [0.0, 0.0, 1.0], [0.0, 0.1, 1.0]
+    assert rest_windows(X).tolist() == [-1, 0, 0, 1, 1, -1, -1]
+
+
 def test_fill_rotations_turns_a_hidden_held_object_with_its_carrier():
     from cogs.preprocess.objectfit import fill_rotations
 

@@ -561,6 +561,63 @@ def _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, 
     return R_obj_cam, t_obj_cam
 
 
+def rest_windows(rest_world: np.ndarray) -> np.ndarray:
+    """Window index [T] of each frame in ``rest_positions``' output (consecutive frames at
+    one point), -1 where the object does not rest."""
+    out = np.full(len(rest_world), -1)
+    k = -1
+    for t in range(len(rest_world)):
+        if not np.isfinite(rest_world[t]).all():
+            continue
+        if t == 0 or out[t - 1] < 0 or not np.array_equal(rest_world[t], rest_world[t - 1]):
+            k += 1
+        out[t] = k
+    return out
+
+
+def _refine_rest(masks, K, kind, half, R_obj_cam, t_obj_cam, world_to_camera, windows, eq_r_px, refine_steps):
+    """One world pose per resting window, refined on the sum of its frames' silhouette
+    scores from the window's middle frame (its frames were refined one by one before, each
+    free to turn its own way where the proxy's shape differs from the object's)."""
+    R_obj_cam, t_obj_cam = R_obj_cam.copy(), t_obj_cam.copy()
+    R_wc, t_wc = world_to_camera[:, :3, :3], world_to_camera[:, :3, 3]
+    pts = proxy_points(kind, half)
+    for w in range(windows.max() + 1):
+        sel = np.flatnonzero(windows == w)
+        scorers = [_Scorer(masks[t], K, pts, margin=int(2 * eq_r_px[t]) + 4) for t in sel]
+
+        def score(Rw: np.ndarray, tw: np.ndarray) -> float:
+            return float(np.mean([sc(R_wc[t] @ Rw, R_wc[t] @ tw + t_wc[t])[0] for sc, t in zip(scorers, sel)]))
+
+        m = sel[len(sel) // 2]
+        R_best = R_wc[m].T @ R_obj_cam[m]
+        t_best = R_wc[m].T @ (t_obj_cam[m] - t_wc[m])
+        s_best = score(R_best, t_best)
+        depth = float(np.median(t_obj_cam[sel, 2]))
+        step_t, step_r = 0.01 * depth, 0.06
+        for _ in range(refine_steps):
+            improved = False
+            for axis in range(3):
+                for sign in (-1.0, 1.0):
+                    tc = t_best.copy()
+                    tc[axis] += sign * step_t
+                    s = score(R_best, tc)
+                    if s < s_best - 1e-6:
+                        s_best, t_best, improved = s, tc, True
+                    Rc = _axis_rotation(axis, sign * step_r) @ R_best
+                    s = score(Rc, t_best)
+                    if s < s_best - 1e-6:
+                        s_best, R_best, improved = s, Rc, True
+            if not improved:
+                step_t *= 0.5
+                step_r *= 0.5
+                if step_r < 0.005:
+                    break
+        R_obj_cam[sel] = np.einsum("tij,jk->tik", R_wc[sel], R_best)
+        t_obj_cam[sel] = np.einsum("tij,j->ti", R_wc[sel], t_best) + t_wc[sel]
+    return R_obj_cam, t_obj_cam
+
+
 def fit_object(
     masks: np.ndarray,
     confidence: np.ndarray,
@@ -633,15 +690,20 @@ def fit_object(
     idx = np.flatnonzero(has)
     dist = rotation_distances(hyps)
     hyp_flat = hyps.reshape(len(hyps), 9)
-    path = np.zeros(T, np.int64)
-    path[idx] = viterbi(cost[idx] * weight[idx, None], smooth_per_rad * dist)
     hand_depth = _hand_depth(hand_cam, frames, K, eq_r_px, (H, W))
     # Not held (no fitted hand at the mask) and confidently tracked: the object can only rest
     # or fly, and a flying one fails the fixed-point test.
     rest_world = rest_positions(frames, world_to_camera, K, has & (confidence >= 0.5) & ~np.isfinite(hand_depth))
     rest_cam = np.einsum("tij,tj->ti", R_wc, rest_world) + t_wc
+    windows = rest_windows(rest_world)
+    # A resting object does not turn: consecutive frames of one window keep one hypothesis.
+    same = np.array([windows[a] >= 0 and windows[a] == windows[b] for a, b in zip(idx[:-1], idx[1:])])
+    tied = np.where(dist > 0, np.inf, 0.0)
+    path = np.zeros(T, np.int64)
+    path[idx] = viterbi(cost[idx] * weight[idx, None], lambda k: tied if same[k] else smooth_per_rad * dist)
     R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam)
     R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
+    R_obj_cam, t_obj_cam = _refine_rest(masks, K, kind, half, R_obj_cam, t_obj_cam, world_to_camera, windows, eq_r_px, refine_steps)
     n_measured = 0
     if images is not None and len(idx) >= 2:
         feats = _Features(images, masks)
@@ -652,6 +714,8 @@ def fit_object(
         n_measured = sum(d is not None for d in D)
 
         def pairwise(k: int) -> np.ndarray:
+            if same[k]:
+                return tied
             if D[k] is None:
                 return smooth_per_rad * dist
             tr = (np.einsum("ij,njk->nik", D[k], hyps).reshape(len(hyps), 9)) @ hyp_flat.T  # tr(R_j^T D R_i) at [i, j]
@@ -660,6 +724,7 @@ def fit_object(
         path[idx] = viterbi(cost[idx] * weight[idx, None], pairwise)
         R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam)
         R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
+        R_obj_cam, t_obj_cam = _refine_rest(masks, K, kind, half, R_obj_cam, t_obj_cam, world_to_camera, windows, eq_r_px, refine_steps)
     pts = proxy_points(kind, half)
 
     # Camera -> world; frames without a mask from the frames either side.
@@ -676,19 +741,21 @@ def fit_object(
         low = h < half.min()
         t_world[low] += np.outer(half.min() - h[low], n)
 
-    # 5. Smoothing.
+    # 5. Smoothing of the translations. The rotations were chosen with a turning cost already;
+    # smoothing them again flattened the fast turns of a held object (and the object branch
+    # fits its own keyframes to them): docs/experiments/2026-11-27-resting-rotation-and-twins.md.
     from cogs.geometry.rotations import rotmat_to_quat
     from cogs.geometry.splines import fit_keyframes, sample_trajectory
 
     q = rotmat_to_quat(torch.tensor(R_world)).numpy()
+    q = q * np.cumprod(np.r_[1.0, np.sign((q[1:] * q[:-1]).sum(1) + 1e-12)])[:, None]  # sign-continuous
     times = torch.arange(T, dtype=torch.float64)
     wts = torch.tensor(np.where(has, weight, 1e-3) + 1e-6)
     if T >= 3:
         n_key = max(2, min(T, (T + 1) // 2))
         p, v, qk = fit_keyframes(times, torch.tensor(t_world), torch.tensor(q), n_key, frame_weights=wts)
         tk = torch.linspace(0, T - 1, n_key, dtype=torch.float64)
-        ts, qs = sample_trajectory(tk, p, v, qk, times)
-        t_world, q = ts.numpy(), qs.numpy()
+        t_world = sample_trajectory(tk, p, v, qk, times)[0].numpy()
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     assert np.isfinite(q).all() and np.isfinite(t_world).all(), "fit_object: non-finite trajectory"
 
