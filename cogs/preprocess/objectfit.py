@@ -741,21 +741,21 @@ def fit_object(
         low = h < half.min()
         t_world[low] += np.outer(half.min() - h[low], n)
 
-    # 5. Smoothing of the translations. The rotations were chosen with a turning cost already;
-    # smoothing them again flattened the fast turns of a held object (and the object branch
-    # fits its own keyframes to them): docs/experiments/2026-11-27-resting-rotation-and-twins.md.
+    # 5. Smoothing. (Leaving the rotations unsmoothed followed the synthetic box's fast turns
+    # a little better but let a round object's unobservable spin jitter by 8-35 degrees a
+    # frame on the real clips: docs/experiments/2026-11-27-resting-rotation-and-twins.md.)
     from cogs.geometry.rotations import rotmat_to_quat
     from cogs.geometry.splines import fit_keyframes, sample_trajectory
 
     q = rotmat_to_quat(torch.tensor(R_world)).numpy()
-    q = q * np.cumprod(np.r_[1.0, np.sign((q[1:] * q[:-1]).sum(1) + 1e-12)])[:, None]  # sign-continuous
     times = torch.arange(T, dtype=torch.float64)
     wts = torch.tensor(np.where(has, weight, 1e-3) + 1e-6)
     if T >= 3:
         n_key = max(2, min(T, (T + 1) // 2))
         p, v, qk = fit_keyframes(times, torch.tensor(t_world), torch.tensor(q), n_key, frame_weights=wts)
         tk = torch.linspace(0, T - 1, n_key, dtype=torch.float64)
-        t_world = sample_trajectory(tk, p, v, qk, times)[0].numpy()
+        ts, qs = sample_trajectory(tk, p, v, qk, times)
+        t_world, q = ts.numpy(), qs.numpy()
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     assert np.isfinite(q).all() and np.isfinite(t_world).all(), "fit_object: non-finite trajectory"
 
