@@ -1153,6 +1153,15 @@ def test_rest_positions_triangulate_a_resting_object_and_refuse_a_moving_one_or_
     moving = centre + np.outer(np.arange(T), [0.0, 0.0, 0.04])
     frames = [_CoarseMask(m, K) for m in _box_clip(w2c, moving, K)]
     assert np.isnan(rest_positions(frames, w2c, K, np.ones(T, bool))).all()
+    # A window found is extended over frames left out (a hand at the still box) while their
+    # centroids stay on its point, and not once the box rises.
+    frames = [_CoarseMask(m, K) for m in _box_clip(w2c, np.tile(centre, (T, 1)), K)]
+    X = rest_positions(frames, w2c, K, np.arange(T) < 6, extend=np.ones(T, bool))
+    assert np.isfinite(X).all() and np.allclose(X, X[0])
+    lifted = np.tile(centre, (T, 1)) + np.outer(np.maximum(np.arange(T) - 6, 0), [0.0, 0.0, 0.05])
+    frames = [_CoarseMask(m, K) for m in _box_clip(w2c, lifted, K)]
+    X = rest_positions(frames, w2c, K, np.arange(T) < 6, extend=np.ones(T, bool))
+    assert np.isfinite(X[:7]).all() and np.isnan(X[7:]).all(), X
     # A nearly still camera (2.7 degrees round the box in all) sees too little parallax.
     still = _circling(T, step_deg=0.3)
     frames = [_CoarseMask(m, K) for m in _box_clip(still, np.tile(centre, (T, 1)), K)]

@@ -407,7 +407,7 @@ def _hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, eq_r_px: np.n
 
 
 def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, candidates: np.ndarray, min_frames: int = 3,
-                   min_parallax_deg: float = 5.0, tol: float = 0.1) -> np.ndarray:
+                   min_parallax_deg: float = 5.0, tol: float = 0.1, extend: np.ndarray | None = None) -> np.ndarray:
     """World position [T, 3] of the object in the frames where it rests (NaN elsewhere).
 
     A resting object seen from a moving camera is a fixed point: the rays through its mask
@@ -418,7 +418,10 @@ def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, can
     ``min_parallax_deg`` or more (less leaves the depth undetermined). An object rising or
     falling, a still camera or a mask whose centroid wanders (a hand across it) fails the
     test; motion along the camera's own path can mimic parallax, so the candidates should be
-    frames where nothing moves the object (no hand at it).
+    frames where nothing moves the object (no hand at it). A window found is then extended
+    over the neighbouring ``extend`` frames (e.g. the hand reaching for the object before it
+    lifts it) whose centroid still projects from the window's point within the tolerance:
+    the point is already fixed by the window's parallax.
     ``tol`` and ``min_parallax_deg`` were set on the synthetic video benchmark's two clips
     (docs/experiments/2026-11-27-object-at-rest.md)."""
     T = len(frames)
@@ -476,6 +479,21 @@ def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, can
             out[s : best[0] + 1] = best[1]
             s = best[0] + 1
         t = end + 1
+    if extend is not None:
+        def holds(t: int, X: np.ndarray) -> bool:
+            if not (extend[t] and np.isfinite(rays[t]).all()):
+                return False
+            cam = R_wc[t] @ X + t_wc[t]
+            return cam[2] > 1e-3 and np.linalg.norm(cam[:2] / cam[2] * K[0, 0] + K[:2, 2] - cent[t]) <= tol_px[t]
+
+        found = out.copy()
+        for t in range(1, T):  # forwards from each window's last frame
+            if np.isfinite(found[t - 1]).all() and not np.isfinite(out[t]).all() and holds(t, found[t - 1]):
+                found[t] = found[t - 1]
+        for t in range(T - 2, -1, -1):  # and backwards from its first
+            if np.isfinite(found[t + 1]).all() and not np.isfinite(found[t]).all() and holds(t, found[t + 1]):
+                found[t] = found[t + 1]
+        out = found
     return out
 
 
@@ -693,7 +711,7 @@ def fit_object(
     hand_depth = _hand_depth(hand_cam, frames, K, eq_r_px, (H, W))
     # Not held (no fitted hand at the mask) and confidently tracked: the object can only rest
     # or fly, and a flying one fails the fixed-point test.
-    rest_world = rest_positions(frames, world_to_camera, K, has & (confidence >= 0.5) & ~np.isfinite(hand_depth))
+    rest_world = rest_positions(frames, world_to_camera, K, has & (confidence >= 0.5) & ~np.isfinite(hand_depth), extend=has & (confidence >= 0.5))
     rest_cam = np.einsum("tij,tj->ti", R_wc, rest_world) + t_wc
     windows = rest_windows(rest_world)
     # A resting object does not turn: consecutive frames of one window keep one hypothesis.
