@@ -13,7 +13,10 @@ ellipsoid only wins for objects that really are round.
    of world rotations covering SO(3); in every frame each is placed where its silhouette
    has the mask's area and centroid, and scored by IoU. A dynamic programme picks one
    hypothesis per frame minimising the silhouette cost plus ``smooth_per_rad`` x the
-   rotation between consecutive frames, in the world. One silhouette is ambiguous (a box
+   rotation between consecutive frames, in the world; the frames of a resting window
+   (step 3) keep one hypothesis, refined on all of their silhouettes together (fitted one by
+   one, each view turned the proxy its own way wherever the proxy's shape differs from the
+   object's). One silhouette is ambiguous (a box
    and its mirror image through the image plane look alike, and symmetric views tie); the
    same object seen from a moving camera, or turning smoothly, is not.
 3. **Metric size and depth from rest and from the hand** (``rest_positions``): where the
