@@ -1356,6 +1356,24 @@ def _walked_past_cameras(k: float, T: int = 6):
     return w2c, np.ones(T, bool), ground, K, kp2d, up_cam, feet_cam, root_cam
 
 
+def test_a_tilted_plane_that_gives_a_wandering_scale_is_not_taken_for_the_floor(monkeypatch):
+    """A ramp (or a shelf top) within 30 degrees of up that the feet rays hit: the scale it
+    gives changes from frame to frame as the camera moves along it, so it is refused and
+    the ground goes through the feet."""
+    from cogs.preprocess import world as Wd
+
+    k, T = 4.0, 12
+    w2c, reg, _, K, kp2d, up_cam, feet_cam, root_cam = _walked_past_cameras(k=k, T=T)
+    w2c[:, 0, 3] = -0.3 * k * np.arange(T)  # a longer walk along the ramp
+    rng = np.random.default_rng(0)
+    x, z = rng.uniform(-2, 6, 400), rng.uniform(1, 8, 400)
+    ramp = np.c_[x, 1.5 + np.tan(np.radians(25)) * x, z] * k  # rising 25 degrees along the walk
+    al = Wd.align_sfm(w2c, reg, ramp, K, kp2d, up_cam, feet_cam, root_cam)
+    assert al.ground_source == "feet" and al.notes["planes_refused"][0]["scale_spread"] > Wd.MAX_SCALE_SPREAD
+    monkeypatch.setattr(Wd, "MAX_SCALE_SPREAD", np.inf)
+    assert Wd.align_sfm(w2c, reg, ramp, K, kp2d, up_cam, feet_cam, root_cam).ground_source == "points"
+
+
 def test_the_world_scale_comes_from_the_ground_and_its_absence_is_warned(caplog):
     """With the floor among the reconstructed points the metric scale is recovered from the
     feet on it; without any point the SfM units are kept, and the user is told so."""
