@@ -1075,6 +1075,11 @@ def test_object_fit_recovers_a_ball_carried_by_a_hand():
     err = np.linalg.norm(fit.track.translations - centres, axis=1)
     assert err.max() < 0.07, err  # about 2 % of the 3 m to the camera
     assert np.nanmin(fit.iou) > 0.85
+    # A floor 2 m above the ball (a shelf taken for the floor): the masks are trusted, the
+    # ball is not lifted off screen onto it.
+    fit = fit_object(masks, np.ones(T), K, w2c, np.repeat(hand, 4, axis=1), root, ground=(np.array([0.0, 0.0, 1.0]), -2.0))
+    assert np.linalg.norm(fit.track.translations - centres, axis=1).max() < 0.07
+    assert np.nanmin(fit.iou) > 0.85
 
 
 

@@ -759,8 +759,17 @@ def fit_object(
     if ground is not None:
         n, d = ground
         h = t_world @ n + d
-        low = h < half.min()
+        # Lifted onto the floor where it sinks into it by a depth error's worth (a tenth of
+        # its distance from the camera). Deeper means the world's floor is not where the
+        # object is (a shelf taken for the floor lifted the loading clip's box 4 m, off
+        # screen): its masks are trusted over the floor there.
+        dist = np.linalg.norm(t_obj_cam, axis=1)
+        low = (h < half.min()) & (half.min() - h <= 0.1 * dist)
         t_world[low] += np.outer(half.min() - h[low], n)
+        deep = int(((h < half.min()) & ~low & has).sum())
+        if deep:
+            log.warning("the object sits more than a tenth of its distance below the world's floor in %d frames; its "
+                        "masks are trusted there (the floor may be a shelf or a table: see source.body_fit in scene.json)", deep)
 
     # 5. Smoothing. (Leaving the rotations unsmoothed followed the synthetic box's fast turns
     # a little better but let a round object's unobservable spin jitter by 8-35 degrees a

@@ -35,7 +35,7 @@ give before it is refused as not the floor. The floor gave 0.034-0.042 (the synt
 video benchmark's two clips, the backpack clip); a plane of the loading clip's shop
 shelves or boxes, taken as the floor in two of its three runs, 0.23 and 0.30, and with it a
 scale 7x off and the body fit 10x further from the keypoints
-(docs/experiments/2026-11-27-resting-rotation-and-twins.md)."""
+(docs/experiments/2026-11-27-a-shelf-taken-for-the-floor.md)."""
 
 
 @dataclass
@@ -168,6 +168,8 @@ def align_sfm(
             spread = float(np.std(np.log(ratio)))
             if spread > MAX_SCALE_SPREAD:
                 notes.setdefault("planes_refused", []).append({"inliers": int(len(pl.inliers)), "scale_spread": round(spread, 3)})
+                log.info("a plane of %d points is not taken for the floor: the scale it gives varies by %.0f %% from frame "
+                         "to frame (a shelf, table top or ramp)", len(pl.inliers), 100 * (np.exp(spread) - 1))
                 continue
             if best is None or len(pl.inliers) > len(best[2]):
                 best = (n, d, pl.inliers, ratio, spread)
