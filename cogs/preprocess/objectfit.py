@@ -547,6 +547,34 @@ def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_
     return R_obj_cam, dirs * depth[:, None], depth, source, size * half_unit
 
 
+def _pose_search(score, R: np.ndarray, t: np.ndarray, s_best: float, steps: int, step_t: np.ndarray, step_r: float,
+                 min_step_r: float) -> tuple[np.ndarray, np.ndarray]:
+    """A pose (R, t) improved by a shrinking-step coordinate search on ``score(R, t)``
+    (lower is better; ``s_best`` its value at the start): a step of ``step_t[axis]`` along
+    each axis and a turn of ``step_r`` about it, both halved when no move helps, until the
+    turn is under ``min_step_r`` or ``steps`` rounds have passed."""
+    step_t = np.asarray(step_t, dtype=np.float64).copy()
+    for _ in range(steps):
+        improved = False
+        for axis in range(3):
+            for sign in (-1.0, 1.0):
+                tc = t.copy()
+                tc[axis] += sign * step_t[axis]
+                s = score(R, tc)
+                if s < s_best - 1e-6:
+                    s_best, t, improved = s, tc, True
+                Rc = _axis_rotation(axis, sign * step_r) @ R
+                s = score(Rc, t)
+                if s < s_best - 1e-6:
+                    s_best, R, improved = s, Rc, True
+        if not improved:
+            step_t *= 0.5
+            step_r *= 0.5
+            if step_r < min_step_r:
+                break
+    return R, t
+
+
 def _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps):
     """Each frame's pose refined from its hypothesis on the full-resolution silhouette."""
     R_obj_cam, t_obj_cam = R_obj_cam.copy(), t_obj_cam.copy()
@@ -557,25 +585,8 @@ def _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, 
         scorer = _Scorer(masks[t], K, pts, margin=int(2 * eq_r_px[t]) + 4)
         R_best, t_best = R_obj_cam[t], t_obj_cam[t].copy()
         s_best, _ = scorer(R_best, t_best)
-        step_t, step_r = 0.03 * depth[t], 0.12
-        for _ in range(refine_steps):
-            improved = False
-            for axis in range(3):
-                for sign in (-1.0, 1.0):
-                    tc = t_best.copy()
-                    tc[axis] += sign * step_t * (0.3 if axis < 2 else 1.0)
-                    s, _ = scorer(R_best, tc)
-                    if s < s_best - 1e-6:
-                        s_best, t_best, improved = s, tc, True
-                    Rc = _axis_rotation(axis, sign * step_r) @ R_best
-                    s, _ = scorer(Rc, t_best)
-                    if s < s_best - 1e-6:
-                        s_best, R_best, improved = s, Rc, True
-            if not improved:
-                step_t *= 0.5
-                step_r *= 0.5
-                if step_r < 0.01:
-                    break
+        R_best, t_best = _pose_search(lambda R, tt: scorer(R, tt)[0], R_best, t_best, s_best, refine_steps,
+                                      step_t=0.03 * depth[t] * np.array([0.3, 0.3, 1.0]), step_r=0.12, min_step_r=0.01)
         if source[t] in ("hand", "rest"):  # depth measured otherwise (a partly hidden view's outline says little about it)
             t_best = t_best / t_best[2] * depth[t]
         R_obj_cam[t], t_obj_cam[t] = R_best, t_best
@@ -613,27 +624,9 @@ def _refine_rest(masks, K, kind, half, R_obj_cam, t_obj_cam, world_to_camera, wi
         m = sel[len(sel) // 2]
         R_best = R_wc[m].T @ R_obj_cam[m]
         t_best = R_wc[m].T @ (t_obj_cam[m] - t_wc[m])
-        s_best = score(R_best, t_best)
         depth = float(np.median(t_obj_cam[sel, 2]))
-        step_t, step_r = 0.01 * depth, 0.06
-        for _ in range(refine_steps):
-            improved = False
-            for axis in range(3):
-                for sign in (-1.0, 1.0):
-                    tc = t_best.copy()
-                    tc[axis] += sign * step_t
-                    s = score(R_best, tc)
-                    if s < s_best - 1e-6:
-                        s_best, t_best, improved = s, tc, True
-                    Rc = _axis_rotation(axis, sign * step_r) @ R_best
-                    s = score(Rc, t_best)
-                    if s < s_best - 1e-6:
-                        s_best, R_best, improved = s, Rc, True
-            if not improved:
-                step_t *= 0.5
-                step_r *= 0.5
-                if step_r < 0.005:
-                    break
+        R_best, t_best = _pose_search(score, R_best, t_best, score(R_best, t_best), refine_steps,
+                                      step_t=0.01 * depth * np.ones(3), step_r=0.06, min_step_r=0.005)
         R_obj_cam[sel] = np.einsum("tij,jk->tik", R_wc[sel], R_best)
         t_obj_cam[sel] = np.einsum("tij,j->ti", R_wc[sel], t_best) + t_wc[sel]
     return R_obj_cam, t_obj_cam
