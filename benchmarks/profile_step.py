@@ -1,7 +1,7 @@
 """Where a stage-VI training step's time goes, and how busy it keeps the cores.
 
     python benchmarks/profile_step.py --scene DIR [--preset quick|paper] [--set K=V ...]
-        [--steps 30] [--warm 10] [--grow] [--work DIR] [--top 25]
+        [--steps 30] [--warm 10] [--grow] [--work DIR] [--top 25] [--device cpu|cuda]
 
 Trains `--scene` with the preset's configuration on a compressed schedule that reaches
 stage VI quickly (a few steps per earlier stage), then times `--steps` stage-VI steps
@@ -12,6 +12,9 @@ of the same steps (the `--top` entries by own time). `--grow` lets density contr
 each branch up to its cap during the compressed stage V (gradient threshold 0, a round
 every 5 steps), so the profiled step carries the Gaussian counts a full run ends with
 rather than the initial ones. `--set` overrides any config field, as `cogs train --set`.
+On `--device cuda` every phase boundary synchronises the device, so a phase's wall time
+is its kernels' time too (not only the launches); the processor time then counts the
+host's launching and waiting.
 
 Prints the profile, then one JSON object on its last line.
 """
@@ -46,8 +49,9 @@ GROW = ["scene_density.grad_threshold=0", "scene_density.refine_every=5", "scene
 class Phases:
     """Wall and processor seconds per named phase, while `on`."""
 
-    def __init__(self):
+    def __init__(self, sync=None):
         self.on = False
+        self.sync = sync or (lambda: None)
         self.wall: dict[str, float] = {}
         self.cpu: dict[str, float] = {}
 
@@ -56,10 +60,12 @@ class Phases:
         if not self.on:
             yield
             return
+        self.sync()
         t, c = time.perf_counter(), time.process_time()
         try:
             yield
         finally:
+            self.sync()
             self.wall[name] = self.wall.get(name, 0.0) + time.perf_counter() - t
             self.cpu[name] = self.cpu.get(name, 0.0) + time.process_time() - c
 
@@ -108,6 +114,7 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=None)
     ap.add_argument("--top", type=int, default=25)
     ap.add_argument("--ops", action="store_true", help="also torch.profiler's table of operators (own time)")
+    ap.add_argument("--device", default="cpu", help="cpu or cuda (cuda: phases synchronised)")
     args = ap.parse_args()
 
     from cogs.config import apply_overrides, preset
@@ -120,9 +127,11 @@ def main() -> None:
     cfg = apply_overrides(preset(args.preset), sets + args.sets)
     scene = load_scene(args.scene, ground_truth=False)
     work = args.work or Path(tempfile.mkdtemp(prefix="cogs_profile_"))
-    phases = Phases()
+    cuda = torch.device(args.device).type == "cuda"
+    sync = torch.cuda.synchronize if cuda else None
+    phases = Phases(sync)
     _instrument(phases)
-    tr = Trainer(scene, cfg, work / "run", show_progress=False)
+    tr = Trainer(scene, cfg, work / "run", device=args.device, show_progress=False)
     plain_step = tr._step
     prof = cProfile.Profile()
     record = {"wall": 0.0, "cpu": 0.0, "n": 0}
@@ -131,11 +140,15 @@ def main() -> None:
         if spec.name != "VI" or it < args.warm:
             return plain_step(spec, it)
         phases.on = True
+        if sync:
+            sync()
         t, c = time.perf_counter(), time.process_time()
         prof.enable()
         try:
             return plain_step(spec, it)
         finally:
+            if sync:
+                sync()
             prof.disable()
             record["wall"] += time.perf_counter() - t
             record["cpu"] += time.process_time() - c
@@ -147,7 +160,8 @@ def main() -> None:
             for b, s in tr.strategies.items():
                 s.cfg = apply_overrides(preset(args.preset), args.sets).__getattribute__(f"{b}_density")
         if args.ops and spec.name == "VI" and it >= args.warm:
-            with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU], record_shapes=True) as tp:
+            acts = [torch.profiler.ProfilerActivity.CPU] + ([torch.profiler.ProfilerActivity.CUDA] if cuda else [])
+            with torch.profiler.profile(activities=acts, record_shapes=True) as tp:
                 r = step(spec, it)
             ops.append(tp.key_averages(group_by_input_shape=True))
             return r
@@ -162,7 +176,8 @@ def main() -> None:
     pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(args.top)
     print(s.getvalue())
     if ops:
-        print(ops[-1].table(sort_by="self_cpu_time_total", row_limit=args.top))
+        key = "self_device_time_total" if cuda else "self_cpu_time_total"
+        print(ops[-1].table(sort_by=key, row_limit=args.top))
     print(f"{'phase':<22}{'ms/step':>10}{'cores':>8}")
     for k in sorted(phases.wall, key=phases.wall.get, reverse=True):
         w = phases.wall[k]
@@ -173,7 +188,10 @@ def main() -> None:
         "step_s": round(record["wall"] / n, 4), "step_cores": round(record["cpu"] / max(record["wall"], 1e-9), 2),
         "phases_ms": {k: round(1000 * v / n, 1) for k, v in sorted(phases.wall.items(), key=lambda kv: -kv[1])},
         "phases_cores": {k: round(phases.cpu[k] / max(v, 1e-9), 2) for k, v in phases.wall.items()},
-        "threads": {"torch": torch.get_num_threads()}, "wall_s": round(time.perf_counter() - t0, 1),
+        "threads": {"torch": torch.get_num_threads()}, "device": args.device,
+        "gpu": torch.cuda.get_device_name() if cuda else None,
+        "max_memory_allocated_gib": round(torch.cuda.max_memory_allocated() / 2**30, 2) if cuda else None,
+        "wall_s": round(time.perf_counter() - t0, 1),
     }
     print(json.dumps(out))
 
