@@ -29,9 +29,14 @@ ellipsoid only wins for objects that really are round.
    mask. The body's metric scale carries over to all of them.
 4. **Refinement**: rotation and translation together by a shrinking-step coordinate
    search on the full-resolution silhouette score, from the chosen hypothesis.
-5. **Smoothing**: cubic-Hermite/SLERP keyframes (``cogs.geometry.splines.fit_keyframes``)
+5. **Carried in a hand** (``carry_in_hand``): a stretch of frames held by a fitted hand
+   that starts (or ends) at a frame whose rotation is known (at rest, or clearly seen and
+   not held) turns with that hand's fitted forearm from there, the grasp keeping the object
+   fixed on it: a person turning round with the object, or twisting it, turns it faster
+   than the silhouettes can follow.
+6. **Smoothing**: cubic-Hermite/SLERP keyframes (``cogs.geometry.splines.fit_keyframes``)
    fitted robustly to the per-frame poses, weighted by mask confidence, then sampled at
-   every frame.
+   every frame; carried frames keep the forearm's (already smooth) turn.
 
 A symmetric object (a ball) has no observable rotation; the hypotheses then tie and the
 smoothness term keeps the rotation constant.
@@ -64,6 +69,7 @@ class ObjectFit:
     iou: np.ndarray  # [T] silhouette IoU of the smoothed pose (NaN where the mask is empty)
     depth_source: list[str]  # per frame: "rest", "size", "hand", "interpolated"
     kind: str = "ellipsoid"  # the proxy: "cuboid" or "ellipsoid"
+    carried: np.ndarray | None = None  # [T] bool: turned with a fitted forearm (``carry_in_hand``)
 
 
 def ellipsoid_points(radii: np.ndarray, n: int = 300) -> np.ndarray:
@@ -130,6 +136,57 @@ def fill_rotations(R: np.ndarray, has: np.ndarray, held: np.ndarray, carrier: np
             else:
                 R[t] = _slerp_rot(R[a], R[b], u)
     return R
+
+
+def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: np.ndarray, forearm_world: np.ndarray,
+                  anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations [T, 3, 3] with each carried stretch turned with the forearm that
+    holds it, and [T] bool: the frames so set.
+
+    A carried stretch is a run of masked frames ``held`` by a fitted hand (with the frames
+    without a mask between them). Where the masked frame just before it, or just after it,
+    is an ``anchor`` (a rotation to trust: the object resting or clearly seen, not in a
+    hand), the grasp fixes the object to the forearm of the hand ``side`` [T] finds at it
+    most often (``forearm_world`` [T, 2, 3, 3], left and right): R(t) = F(t) G with the
+    grasp offset G = F(a)^T R(a) at the anchor a before it, or at the one after it, or the
+    two interpolated along the stretch where both exist (a regrasp in between). Stretches
+    without an anchor are left as they are: their offset, and which of a box's symmetric
+    twins it is, would be the silhouettes' guess. The silhouettes cannot follow a held
+    object turning fast (a person turning round with it, a forearm twisting it: partial
+    views, the object out of sight, twins that look alike), the forearm can; on the
+    synthetic video benchmark the fitted forearm follows the box within about 30 degrees
+    over its carried frames (docs/experiments/2026-11-27-carried-in-hand.md)."""
+    T = len(R_world)
+    R = R_world.copy()
+    carried = np.zeros(T, bool)
+    idx = np.flatnonzero(has)
+    k = 0
+    while k < len(idx):
+        if not held[idx[k]]:
+            k += 1
+            continue
+        e = k
+        while e + 1 < len(idx) and held[idx[e + 1]]:
+            e += 1
+        a, b = int(idx[k]), int(idx[e])
+        sides = side[idx[k : e + 1]]
+        sides = sides[sides >= 0]
+        before = int(idx[k - 1]) if k > 0 and anchor[idx[k - 1]] else None
+        after = int(idx[e + 1]) if e + 1 < len(idx) and anchor[idx[e + 1]] else None
+        k = e + 1
+        if not len(sides) or (before is None and after is None):
+            continue
+        F = forearm_world[:, int(np.bincount(sides, minlength=2).argmax())]
+        G0 = F[before].T @ R_world[before] if before is not None else None
+        G1 = F[after].T @ R_world[after] if after is not None else None
+        for t in range(a, b + 1):
+            if G0 is not None and G1 is not None and b > a:
+                G = _slerp_rot(G0, G1, (t - a) / (b - a))
+            else:
+                G = G0 if G0 is not None else G1
+            R[t] = F[t] @ G
+        carried[a : b + 1] = True
+    return R, carried
 
 
 def silhouette(points_cam: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray | None:
@@ -393,10 +450,13 @@ def _touches(mask: np.ndarray, other: np.ndarray | None) -> float:
     return float(other[edge].mean()) if edge.any() else 0.0
 
 
-def _hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, eq_r_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+def _hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, eq_r_px: np.ndarray,
+                shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """[T] camera depth of the fitted hand joint nearest the mask where one is within two
-    object radii of its centroid in the image (NaN elsewhere)."""
+    object radii of its centroid in the image (NaN elsewhere), and [T] that joint's side
+    (0 left, 1 right: the joints alternate as ``HAND_BONES``; -1 where none is near)."""
     out = np.full(len(frames), np.nan)
+    side = np.full(len(frames), -1)
     for t, fm in enumerate(frames):
         if fm is None:
             continue
@@ -405,8 +465,8 @@ def _hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, eq_r_px: np.n
         d = np.linalg.norm(uv - fm.centroid, axis=1)
         k = int(np.argmin(d))
         if d[k] < 2.0 * eq_r_px[t] + 0.02 * max(shape) and hp[k, 2] > 0:
-            out[t] = hp[k, 2]
-    return out
+            out[t], side[t] = hp[k, 2], k % 2
+    return out, side
 
 
 def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, candidates: np.ndarray, min_frames: int = 3,
@@ -648,6 +708,7 @@ def fit_object(
     images: np.ndarray | None = None,
     feature_per_rad: float = 1.0,
     carrier_world: np.ndarray | None = None,
+    forearm_world: np.ndarray | None = None,
     held_reach: int = 2,
     on_frame=None,
 ) -> ObjectFit:
@@ -657,7 +718,10 @@ def fit_object(
     hand_points_world [T, P, 3] fitted hand joints; body_root_world [T, 3];
     human_masks [T, H, W] flag frames where the object borders the person (partial views);
     carrier_world [T, 3, 3]: the world rotation of the body part that carries a held object
-    (the pipeline gives the fitted body's root), or None.
+    across frames without a mask (the pipeline gives the fitted body's root), or None;
+    forearm_world [T, 2, 3, 3]: the fitted left and right forearms' world rotations, which
+    turn a carried object from a frame whose rotation is known (``carry_in_hand``), or None.
+    hand_points_world's joints alternate left and right (``HAND_BONES``).
 
     ``n_hypotheses`` world rotations are scored per frame (about 15 degrees apart);
     ``smooth_per_rad`` is the cost of turning one radian between consecutive frames, in
@@ -704,7 +768,7 @@ def fit_object(
     idx = np.flatnonzero(has)
     dist = rotation_distances(hyps)
     hyp_flat = hyps.reshape(len(hyps), 9)
-    hand_depth = _hand_depth(hand_cam, frames, K, eq_r_px, (H, W))
+    hand_depth, hand_side = _hand_depth(hand_cam, frames, K, eq_r_px, (H, W))
     # Not held (no fitted hand at the mask) and confidently tracked: the object can only rest
     # or fly, and a flying one fails the fixed-point test.
     rest_world = rest_positions(frames, world_to_camera, K, has & (confidence >= 0.5) & ~np.isfinite(hand_depth), extend=has & (confidence >= 0.5))
@@ -747,7 +811,13 @@ def fit_object(
     held = np.zeros(T, bool)  # a partial mask's centroid can stray from the hand for a frame
     for k, t in enumerate(idx):
         held[t] = near[idx[max(0, k - held_reach) : k + held_reach + 1]].any()
-    R_world = fill_rotations(R_world, has, held, carrier_world)
+    # 5. Carried in a hand, from a frame whose rotation is known.
+    carried = np.zeros(T, bool)
+    if forearm_world is not None:
+        resting = windows >= 0  # a hand at a resting object does not carry it yet
+        anchor = has & (resting | (clear & ~held))
+        R_world, carried = carry_in_hand(R_world, has, held & ~resting, hand_side, forearm_world, anchor)
+    R_world = fill_rotations(R_world, has | carried, held, carrier_world)
     t_world = np.einsum("tji,tj->ti", R_wc, t_obj_cam - t_wc)
     if ground is not None:
         n, d = ground
@@ -764,10 +834,10 @@ def fit_object(
             log.warning("the object sits more than a tenth of its distance below the world's floor in %d frames; its "
                         "masks are trusted there (the floor may be a shelf or a table: see source.body_fit in scene.json)", deep)
 
-    # 5. Smoothing. (Leaving the rotations unsmoothed followed the synthetic box's fast turns
+    # 6. Smoothing. (Leaving the rotations unsmoothed followed the synthetic box's fast turns
     # a little better but let a round object's unobservable spin jitter by 8-35 degrees a
     # frame on the real clips: docs/experiments/2026-11-27-resting-rotation-and-twins.md.)
-    from cogs.geometry.rotations import rotmat_to_quat
+    from cogs.geometry.rotations import quat_sign_continuous, rotmat_to_quat
     from cogs.geometry.splines import fit_keyframes, sample_trajectory
 
     q = rotmat_to_quat(torch.tensor(R_world)).numpy()
@@ -779,6 +849,10 @@ def fit_object(
         tk = torch.linspace(0, T - 1, n_key, dtype=torch.float64)
         ts, qs = sample_trajectory(tk, p, v, qk, times)
         t_world, q = ts.numpy(), qs.numpy()
+        # A carried object turns with the (already smooth) fitted forearm, as fast as the
+        # person turns it: the smoother's keyframes would cut a fast turn short.
+        q[carried] = rotmat_to_quat(torch.tensor(R_world[carried])).numpy()
+        q = quat_sign_continuous(torch.tensor(q)).numpy()
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     assert np.isfinite(q).all() and np.isfinite(t_world).all(), "fit_object: non-finite trajectory"
 
@@ -793,10 +867,11 @@ def fit_object(
             Rc = R_wc[t] @ Rs[t]
             tc = R_wc[t] @ t_world[t] + t_wc[t]
             iou[t] = scorer(Rc, tc)[1]
-    log.info("object proxy: %s, half-extents %s m (silhouette IoU %.2f on %d frames); features measured %d of %d turns",
-             kind, np.round(half, 3), proxy_iou, len(sample), n_measured, max(len(idx) - 1, 0))
+    log.info("object proxy: %s, half-extents %s m (silhouette IoU %.2f on %d frames); features measured %d of %d turns; "
+             "%d frames turned with a forearm", kind, np.round(half, 3), proxy_iou, len(sample), n_measured, max(len(idx) - 1, 0),
+             int(carried.sum()))
     track = ObjectTrack(centre=np.zeros(3), quats=q, translations=t_world)
-    return ObjectFit(track=track, radii_m=half, iou=iou, depth_source=source, kind=kind)
+    return ObjectFit(track=track, radii_m=half, iou=iou, depth_source=source, kind=kind, carried=carried)
 
 
 def _axis_rotation(axis: int, angle: float) -> np.ndarray:

@@ -678,19 +678,22 @@ class _Runner:
         masks = ob["masks"].astype(bool)
         T = len(masks)
         update = ui.task(label, T)
-        # The fitted body's root carries a held object where the masks lose it (the fitted
-        # forearm's twist is barely observed by the landmarks).
+        # A carried object turns with the fitted forearm that holds it, from a frame where its
+        # rotation is known (at rest, or clearly seen); the fitted body's root carries it
+        # across the other frames the masks lose.
         model = load_body_model(self.cfg.body_model)
         with torch.no_grad():
             A, _ = model.bone_transforms(torch.tensor(bo["pose"], dtype=torch.float64), torch.tensor(bo["transl"], dtype=torch.float64),
                                          torch.tensor(bo["shape"], dtype=torch.float64))
-        root = A[:, model.bone_index("root"), :3, :3].numpy()
+        A = A[..., :3, :3].numpy()
+        root = A[:, model.bone_index("root")]
+        forearms = np.stack([A[:, model.bone_index(f"lowerarm01.{side}")] for side in "LR"], axis=1)
         fit = fit_object(masks, ob["confidence"], K, bo["world_to_camera"], bo["hand_joints"].astype(np.float64),
                          bo["root"].astype(np.float64), human_masks=human_masks, ground=(np.array([0.0, 0.0, 1.0]), 0.0),
-                         images=images, carrier_world=root, on_frame=lambda k: update(k))
+                         images=images, carrier_world=root, forearm_world=forearms, on_frame=lambda k: update(k))
         stats = {"proxy": fit.kind, "radii_m": fit.radii_m.tolist(), "mean_iou": float(np.nanmean(fit.iou)), "depth_source": fit.depth_source}
         return {"quats": fit.track.quats, "translations": fit.track.translations, "centre": fit.track.centre,
-                "radii": fit.radii_m, "kind": np.array(fit.kind), "iou": fit.iou}, {
+                "radii": fit.radii_m, "kind": np.array(fit.kind), "iou": fit.iou, "carried": fit.carried}, {
                     "summary": f"{fit.kind} proxy, silhouette IoU {stats['mean_iou']:.2f}", "stats": stats}
 
     def _planes(self, label, ui, bo):
@@ -753,6 +756,8 @@ class _Runner:
             source["object_masks"] = str(Path(self.cfg.object_masks))
         if op is not None:
             source["object_init"] = {"shape": str(op["kind"]), "radii_m": [float(r) for r in op["radii"]]}
+            if "carried" in op:  # (a step cached by an older version has no such record)
+                source["object_init"]["carried_frames"] = np.flatnonzero(op["carried"]).tolist()
         scene = Scene(
             root=None,
             name=self.cfg.name or Path(self.cfg.input).stem,
