@@ -1307,6 +1307,20 @@ def test_pipeline_refuses_frames_without_a_person(tmp_path):
         Preprocess(input=tmp_path / "in", out=tmp_path / "out", progress=False).run()
 
 
+def test_preprocess_refuses_a_body_model_it_cannot_fit(tmp_path, capsys):
+    # The body fit maps the landmarks onto Anny's bones: SMPL used to pass the options and
+    # fail inside the body step with a KeyError.
+    from cogs.cli import main
+    from cogs.data.io import write_image
+
+    for i in range(3):
+        write_image(tmp_path / "in" / f"{i}.png", _texture(96, 128, seed=i))
+    assert main(["preprocess", str(tmp_path / "in"), "--out", str(tmp_path / "s"), "--body-model", "smpl"]) == 2
+    err = capsys.readouterr().err
+    assert "--body-model smpl" in err and "Anny only" in err and "Traceback" not in err
+    assert not (tmp_path / "s").exists()
+
+
 def test_cli_reports_a_missing_video_with_exit_code_2(tmp_path, capsys):
     from cogs.cli import main
 

@@ -78,7 +78,8 @@ class Preprocess:
     object), instead of --object-box."""
 
     body_model: str = "anny"
-    """Body model fitted to the person."""
+    """Body model fitted to the person. Only anny: SMPL-family scenes come from `cogs
+    import`."""
 
     sfm: Literal["auto", "colmap", "rotation"] = "auto"
     """Camera estimation: colmap, the rotation-only fallback, or auto (colmap, falling back
@@ -209,10 +210,10 @@ class Preprocess:
             raise UserError(f"--sam2-checkpoint {self.sam2_checkpoint} does not exist")
         if self.body_model not in MODELS:
             raise UserError(f"--body-model {self.body_model!r} is unknown; known: {', '.join(sorted(MODELS))}")
-        if self.body_model == "smpl":
-            from cogs.body.smpl_body import resolve_smpl_model_file
-
-            resolve_smpl_model_file()
+        if self.body_model != "anny":  # the body fit's landmark map, feet, hands and forearms are Anny's bones
+            raise UserError(f"--body-model {self.body_model}: preprocessing fits Anny only (the landmarks are mapped onto "
+                            "Anny's bones); a run trained on its scene can still be driven by SMPL-family motions "
+                            "(cogs render --motion)")
         if self.name is not None and not self.name.strip():
             raise UserError("--name must not be empty")
         out, inp = Path(self.out).resolve(), src.resolve()
