@@ -746,6 +746,7 @@ def fit_object(
         raise ValueError("fit_object: every object mask is empty")
     assert np.isfinite(world_to_camera).all() and np.isfinite(hand_points_world).all(), "fit_object: non-finite body or cameras"
     assert carrier_world is None or (carrier_world.shape == (T, 3, 3) and np.isfinite(carrier_world).all()), "fit_object: bad carrier"
+    assert forearm_world is None or (forearm_world.shape == (T, 2, 3, 3) and np.isfinite(forearm_world).all()), "fit_object: bad forearms"
 
     hand_cam = np.einsum("tij,tpj->tpi", R_wc, hand_points_world) + t_wc[:, None]
     root_cam = np.einsum("tij,tj->ti", R_wc, body_root_world) + t_wc
