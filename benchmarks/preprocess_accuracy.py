@@ -83,6 +83,11 @@ def _project(X: np.ndarray, w2c: np.ndarray, K: np.ndarray) -> np.ndarray:
     return pc[:, :2] / pc[:, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
 
 
+def _within(value, limit: float) -> bool | None:
+    """Whether a measured mean is at most ``limit`` (None where nothing was measured)."""
+    return None if value is None else bool(value <= limit)
+
+
 def _stats(x) -> dict:
     x = np.asarray(x, dtype=np.float64)
     x = x[np.isfinite(x)]
@@ -258,12 +263,18 @@ def main(argv=None) -> int:
             "human_mask_iou>=0.9": bool(np.mean(h_iou) >= 0.9),
             "object_mask_iou>=0.8": None if o_iou is None else bool(np.mean(o_iou) >= 0.8),
             "joint_2d_error<=0.05": bool(np.mean(j_err) <= 0.05),
+            # issue 27's initial object pose
+            "object_rotation_deg<=20": _within(obj and obj["relative_rotation_deg"]["mean"], 20.0),
+            "object_translation_rel_depth<=0.1": _within(obj and obj["translation_rel_depth"]["mean"], 0.1),
         },
     }
     print(f"scene {scene_dir} -> {out}; preview {report.preview}")
     print(f"cameras ({method}): rotation error mean {res['camera_rotation_deg']['mean']:.2f} deg, max {res['camera_rotation_deg']['max']:.2f}")
     print(f"masks: human IoU {np.mean(h_iou):.3f}" + ("" if o_iou is None else f", object IoU {np.mean(o_iou):.3f}"))
     print(f"2D joints: {np.mean(j_err):.4f} of the person's box height")
+    if obj is not None and obj["relative_rotation_deg"]["mean"] is not None:
+        print(f"object: rotation error mean {obj['relative_rotation_deg']['mean']:.1f} deg (median "
+              f"{obj['relative_rotation_deg']['median']:.1f}), centre {100 * obj['translation_rel_depth']['mean']:.1f} % of depth")
     print(json.dumps(res))
     return 0
 
