@@ -8,6 +8,7 @@ pycolmap is missing. It runs in CI (marked ``slow``: about a minute on two cores
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import time
 from pathlib import Path
@@ -58,6 +59,10 @@ def test_real_clip_becomes_a_scene_that_cogs_check_accepts(real_scene):
     assert s.object.confidence is not None
     np.testing.assert_array_equal(s.object.confidence, tracker_conf)
     assert s.object.confidence[5] == 1.0  # the prompted frame
+    # The initial trajectory's proxy and the frames turned with a fitted forearm are recorded.
+    init = json.loads((cfg.out / "scene.json").read_text())["source"]["object_init"]
+    assert init["shape"] in ("cuboid", "ellipsoid") and len(init["radii_m"]) == 3
+    assert all(0 <= t < 12 for t in init["carried_frames"])
     assert report.stats["body"]["reprojection_error_mean"] < 0.05  # of the person's height
     assert report.preview.exists() and report.preview.stat().st_size > 10_000
 
