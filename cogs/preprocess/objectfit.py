@@ -155,7 +155,11 @@ def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: 
     object turning fast (a person turning round with it, a forearm twisting it: partial
     views, the object out of sight, twins that look alike), the forearm can; on the
     synthetic video benchmark the fitted forearm follows the box within about 30 degrees
-    over its carried frames (docs/experiments/2026-11-27-carried-in-hand.md)."""
+    over its carried frames (docs/experiments/2026-11-27-carried-in-hand.md). The forearm
+    (not the root, the spine, the upper arm or the wrist) was chosen there on the default
+    clip and a 60-frame 512x384 one; none of the real development clips has an anchored
+    held stretch, so real footage has not exercised it yet (their object step is
+    unchanged), and ``cogs demo`` does not preprocess."""
     T = len(R_world)
     R = R_world.copy()
     carried = np.zeros(T, bool)
