@@ -31,6 +31,9 @@ renders a different clip.
      predicted world's metric scale), and the projected centre's pixel error; the rotation
      error of the object's motion relative to the first frame (degrees, in the camera frame);
    - the object step's statistics (frames found, and per cue of the classical tracker).
+4. ``targets``: which of the targets hold (camera rotation <= 2 deg, human mask IoU >= 0.9,
+   object mask IoU >= 0.8, 2D joints <= 5 % of the box height, and issue 27's initial object
+   pose: mean rotation error <= 20 deg, translation <= 10 % of the depth).
 
 Prints a few human-readable lines, then one JSON object on the last line.
 """
