@@ -128,8 +128,7 @@ def main() -> None:
     scene = load_scene(args.scene, ground_truth=False)
     work = args.work or Path(tempfile.mkdtemp(prefix="cogs_profile_"))
     cuda = torch.device(args.device).type == "cuda"
-    sync = torch.cuda.synchronize if cuda else None
-    phases = Phases(sync)
+    phases = Phases(torch.cuda.synchronize if cuda else None)
     _instrument(phases)
     tr = Trainer(scene, cfg, work / "run", device=args.device, show_progress=False)
     plain_step = tr._step
@@ -140,15 +139,13 @@ def main() -> None:
         if spec.name != "VI" or it < args.warm:
             return plain_step(spec, it)
         phases.on = True
-        if sync:
-            sync()
+        phases.sync()
         t, c = time.perf_counter(), time.process_time()
         prof.enable()
         try:
             return plain_step(spec, it)
         finally:
-            if sync:
-                sync()
+            phases.sync()
             prof.disable()
             record["wall"] += time.perf_counter() - t
             record["cpu"] += time.process_time() - c

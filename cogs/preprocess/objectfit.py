@@ -743,7 +743,6 @@ def fit_object(
     round with the object hidden in front of them turns it with them.
     """
     T, H, W = masks.shape
-    f = float(K[0, 0])
     R_wc, t_wc = world_to_camera[:, :3, :3], world_to_camera[:, :3, 3]
     has = masks.reshape(T, -1).any(1)
     if not has.any():
@@ -831,8 +830,8 @@ def fit_object(
         # its distance from the camera). Deeper means the world's floor is not where the
         # object is (a shelf taken for the floor lifted the loading clip's box 4 m, off
         # screen): its masks are trusted over the floor there.
-        dist = np.linalg.norm(t_obj_cam, axis=1)
-        low = (h < half.min()) & (half.min() - h <= 0.1 * dist)
+        away = np.linalg.norm(t_obj_cam, axis=1)  # (not `dist`: the hypotheses' distances above)
+        low = (h < half.min()) & (half.min() - h <= 0.1 * away)
         t_world[low] += np.outer(half.min() - h[low], n)
         deep = int(((h < half.min()) & ~low & has).sum())
         if deep:
