@@ -915,6 +915,50 @@ def test_body_fit_reprojects_synthetic_keypoints(body_model):
     assert err.max() < 0.15, err
 
 
+def test_body_shape_is_an_adult_of_the_given_stature_whatever_mediapipes_scale(body_model):
+    # MediaPipe's metric landmarks cannot tell a person's size: the same skeleton at 0.7 of
+    # its size must give the same body, as tall as asked, adult, with the landmarks' scale
+    # to the model measured.
+    from cogs.preprocess import bodyfit as B
+
+    m = body_model
+    names = list(m.shape_names)
+    person = m.default_shape.numpy().astype(np.float64)
+    person[names.index("age")], person[names.index("proportions")] = B.ADULT_AGE, 0.8
+    pose = torch.zeros(2, m.n_bones, 3)
+    pose[1, m.bone_index("upperarm01.L"), 1] = 0.6
+    with torch.no_grad():
+        _, joints = m.bone_transforms(pose.double(), torch.zeros(2, 3, dtype=torch.float64),
+                                      torch.tensor(person, dtype=torch.float64))
+    joints = joints.numpy()
+    kp3d = np.zeros((2, 33, 3))  # the unmapped landmarks are not used
+    for mp, b in B.MP_TO_ANNY:
+        kp3d[:, mp] = joints[:, m.bone_index(b)]
+    for height in (1.62, 1.85):
+        s = B.choose_shape(m, kp3d, height_m=height)
+        assert abs(B.stature(m, s) - height) < 0.005 and s[names.index("age")] == B.ADULT_AGE
+        np.testing.assert_allclose(B.choose_shape(m, 0.7 * kp3d, height_m=height), s)
+    s = B.choose_shape(m, 0.7 * kp3d, height_m=B.stature(m, person))
+    assert s[names.index("proportions")] == 0.8  # the person's own proportions
+    np.testing.assert_allclose(s, person, atol=1e-6)
+    assert B.limb_scale(m, s, 0.7 * kp3d) == pytest.approx(1 / 0.7, rel=1e-3)
+    assert B.stature(m, B.choose_shape(m, np.full((2, 33, 3), np.nan))) == pytest.approx(B.ADULT_STATURE_M, abs=0.005)
+    np.testing.assert_allclose(B.stature_range(m), B.STATURE_RANGE_M, atol=0.01)
+
+
+def test_preprocess_refuses_a_person_height_out_of_reach(tmp_path, capsys):
+    from cogs.cli import main
+    from cogs.data.io import write_image
+
+    for i in range(3):
+        write_image(tmp_path / "in" / f"{i}.png", _texture(96, 128, seed=i))
+    for bad in ("170", "0.9", "nan"):
+        assert main(["preprocess", str(tmp_path / "in"), "--out", str(tmp_path / "s"), "--person-height", bad]) == 2
+        err = capsys.readouterr().err
+        assert "--person-height" in err and "metres" in err and "Traceback" not in err
+    assert not (tmp_path / "s").exists()
+
+
 def test_missing_keypoint_frames_are_filled_by_interpolation():
     from cogs.preprocess.bodyfit import fill_missing
 
@@ -1282,9 +1326,36 @@ def test_object_fit_turns_a_carried_box_with_the_forearm_that_holds_it():
     assert fit.carried.tolist() == (~rest).tolist()  # from the grasp on, the hidden frames too
     # carry_in_hand itself: a stretch without an anchor either side is left as it is.
     held = ~rest
-    out, carried = carry_in_hand(R_true, np.ones(T, bool), held, np.zeros(T, int), np.stack([forearm, forearm], 1),
-                                 np.zeros(T, bool))
-    assert not carried.any() and np.allclose(out, R_true)
+    out, carried_by = carry_in_hand(R_true, np.ones(T, bool), held, np.zeros(T, int), np.stack([forearm, forearm], 1),
+                                    np.zeros(T, bool))
+    assert (carried_by < 0).all() and np.allclose(out, R_true)
+
+
+def test_a_hidden_carried_object_moves_with_the_hand_that_holds_it():
+    # Out of sight for six frames while the hand swings it towards the camera on an arc and
+    # the forearm turns: between its last and next sighting it goes where the hand takes it,
+    # not along the straight line between the two sightings.
+    from cogs.preprocess.objectfit import carry_positions
+
+    T = 12
+    u = np.arange(T) / (T - 1)
+    palm = np.stack([0.3 * np.sin(np.pi * u), -0.6 * u, 1.0 + 0.4 * np.sin(np.pi * u)], 1)
+    forearm = np.stack([_rot_about(np.array([0.0, 0.0, 1.0]), 90.0 * x) for x in u])
+    grasp = np.array([0.0, 0.12, 0.0])
+    truth = palm + forearm @ grasp
+    has = np.ones(T, bool)
+    has[3:9] = False
+    guess = truth.copy()
+    for k in range(3):  # the straight line through the gap
+        guess[~has, k] = np.interp(np.flatnonzero(~has), np.flatnonzero(has), truth[has, k])
+    far = np.array([0.9, 0.9, 0.0])
+    palms = np.stack([palm + far, palm], 1)  # the left hand elsewhere: the right one carries it
+    forearms = np.stack([np.repeat(np.eye(3)[None], T, 0), forearm], 1)
+    side = np.where(np.arange(T) >= 1, 1, -1)  # carried from frame 1 on
+    out = carry_positions(guess, has, side, palms, forearms)
+    np.testing.assert_allclose(out, truth, atol=1e-9)
+    assert np.linalg.norm(guess - truth, axis=1).max() > 0.2  # the straight line is far off
+    np.testing.assert_array_equal(carry_positions(guess, has, np.full(T, -1), palms, forearms), guess)  # not carried
 
 
 def _rot_about(axis: np.ndarray, deg: float) -> np.ndarray:

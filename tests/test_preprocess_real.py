@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 CLIP = Path(os.environ.get("COGS_REAL_CLIP", Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "basketball_dribble.mp4"))
 # The ball on frame 5 of the clip, in pixels of the 1080x1920 source video.
@@ -65,6 +66,42 @@ def test_real_clip_becomes_a_scene_that_cogs_check_accepts(real_scene):
     assert all(0 <= t < 12 for t in init["carried_frames"])
     assert report.stats["body"]["reprojection_error_mean"] < 0.05  # of the person's height
     assert report.preview.exists() and report.preview.stat().st_size > 10_000
+    # The body is an adult of the default stature, which the scene records.
+    body_fit = json.loads((cfg.out / "scene.json").read_text())["source"]["body_fit"]
+    assert body_fit["stature_from"] == "adult prior" and body_fit["stature_m"] == pytest.approx(1.70)
+
+
+@pytest.mark.slow
+def test_a_given_person_height_scales_the_whole_scene(real_scene, tmp_path):
+    # One view cannot tell a tall person far away from a short one near: the height the
+    # user gives sets the body and, through it, the world's metric scale.
+    import shutil
+
+    from cogs.body import load_body_model
+    from cogs.data.scene import load_scene
+    from cogs.preprocess.bodyfit import stature
+    from cogs.preprocess.pipeline import run_preprocess
+
+    cfg, _, _ = real_scene
+    out = tmp_path / "tall"
+    shutil.copytree(cfg.out / ".cache", out / ".cache")  # frames, persons, objects, cameras are reused
+    report = run_preprocess(dataclasses.replace(cfg, out=out, person_height=1.85))
+    assert {"frames", "persons", "objects", "cameras"} <= set(report.cached) and "body" not in report.cached
+    model = load_body_model("anny")
+    short, tall = load_scene(cfg.out), load_scene(out)
+    assert stature(model, short.body.shape) == pytest.approx(1.70, abs=0.005)
+    assert stature(model, tall.body.shape) == pytest.approx(1.85, abs=0.005)
+
+    def root_depth(s):  # the person's distance along the camera's axis, median over frames
+        with torch.no_grad():
+            _, joints = model.bone_transforms(torch.tensor(s.body.pose), torch.tensor(s.body.transl), torch.tensor(s.body.shape))
+        root = joints[:, model.bone_index("root")].double().numpy()
+        w2c = s.cameras.world_to_camera
+        return float(np.median(np.einsum("tj,tj->t", w2c[:, 2, :3], root) + w2c[:, 2, 3]))
+
+    assert root_depth(tall) / root_depth(short) == pytest.approx(1.85 / 1.70, rel=0.03)
+    radii = [json.loads((d / "scene.json").read_text())["source"]["object_init"]["radii_m"] for d in (cfg.out, out)]
+    np.testing.assert_allclose(np.array(radii[1]) / np.array(radii[0]), 1.85 / 1.70, rtol=0.05)  # the ball grows too
 
 
 @pytest.mark.slow

@@ -5,9 +5,9 @@ Inputs are MediaPipe's 2D keypoints (pixels + visibility) and metric 3D "world" 
 a ``BodyTrack`` (Anny by default): one shape for the whole clip, a pose and a translation
 per frame.
 
-1. **Shape** (``choose_shape``): the phenotype whose limb lengths best match the median
-   MediaPipe 3D limb lengths (a small grid over height and proportions; Anny's shape is not
-   differentiable through ``bone_transforms``).
+1. **Shape** (``choose_shape``): an adult of a given stature (``ADULT_STATURE_M`` unless the
+   user knows it) whose limb proportions best match the median MediaPipe 3D limbs. The
+   stature sets the scene's metric scale; MediaPipe's own metric size is not trusted for it.
 2. **Camera-space initialisation** (``init_camera_space``): the root orientation from the
    3D torso frame; the root position by the linear perspective solve that places the
    metric 3D landmarks on their 2D keypoints (this is where depth comes from: the body's
@@ -120,28 +120,77 @@ def person_height_px(kp2d: np.ndarray) -> np.ndarray:
     return out
 
 
-def choose_shape(model, kp3d: np.ndarray, grid: int = 5) -> np.ndarray:
-    """Phenotype [S] whose limb lengths best match MediaPipe's metric 3D limbs (median over frames)."""
+# An adult of typical stature: between the usual adult male (~1.75 m) and female (~1.62 m)
+# means. MediaPipe's metric landmarks cannot give a person's size (one view cannot tell a
+# tall person far away from a short one near): its limbs made the 1.80 m synthetic person
+# 1.63 m, and the adults of the real development clips 1.22-1.62 m. The stature sets the
+# scene's metric scale, so every depth is off by its error; a user who knows the height
+# gives it (``cogs preprocess --person-height``).
+ADULT_STATURE_M = 1.70
+ADULT_AGE = 2.0 / 3.0  # Anny's "young" (adult) age anchor; 0.5 is between child and young
+STATURE_RANGE_M = (1.30, 2.38)  # what ``with_stature`` reaches at ADULT_AGE (``stature_range``, tested)
+
+
+def stature(model, shape: np.ndarray) -> float:
+    """Standing height (metres) of a phenotype: the rest pose's vertical extent."""
+    z = model.canonical(torch.tensor(shape, dtype=torch.float32)).vertices[:, 2]
+    return float(z.max() - z.min())
+
+
+def stature_range(model) -> tuple[float, float]:
+    """Shortest and tallest adult ``choose_shape`` can make (metres)."""
+    names = list(model.shape_names)
+    s = model.default_shape.numpy().astype(np.float64)
+    s[names.index("age")] = ADULT_AGE
+    lo, hi = s.copy(), s.copy()
+    lo[names.index("height")], hi[names.index("height")] = 0.0, 1.0
+    return stature(model, lo), stature(model, hi)
+
+
+def with_stature(model, shape: np.ndarray, height_m: float, iters: int = 30) -> np.ndarray:
+    """``shape`` with its height parameter set (bisection) so that the body stands ``height_m`` tall."""
+    names = list(model.shape_names)
+    k = names.index("height")
+    lo, hi = 0.0, 1.0
+    s = shape.copy()
+    for _ in range(iters):
+        s[k] = 0.5 * (lo + hi)
+        if stature(model, s) < height_m:
+            lo = s[k]
+        else:
+            hi = s[k]
+    return s
+
+
+def choose_shape(model, kp3d: np.ndarray, height_m: float = ADULT_STATURE_M) -> np.ndarray:
+    """Adult phenotype [S], ``height_m`` tall, whose limb proportions best match MediaPipe's 3D limbs.
+
+    Proportions only: the limb lengths (median over frames) are compared after removing their
+    common scale, over a small grid of Anny's proportions parameter; the stature is given (see
+    ``ADULT_STATURE_M``). Anny's shape is not differentiable through ``bone_transforms``, hence
+    the grid.
+    """
     mp_idx, bones = _mapped(model)
     lookup = {m: b for m, b in zip(mp_idx, bones)}
-    limbs = [(a, b) for a, b in LIMBS if a in lookup and b in lookup and (a, b) not in ((2, 5),)]
-    ok = np.isfinite(kp3d).all(axis=(1, 2))
-    default = model.default_shape.numpy().astype(np.float64)
-    if not ok.any():
-        return default
-    mp_len = np.array([np.median(np.linalg.norm(kp3d[ok, a] - kp3d[ok, b], axis=-1)) for a, b in limbs])
+    limbs = [(a, b) for a, b in LIMBS if a in lookup and b in lookup and (a, b) != (2, 5)]
     names = list(model.shape_names)
-    best, best_err = default, np.inf
-    for h in np.linspace(0.1, 0.9, grid):
-        for p in np.linspace(0.2, 0.8, 3):
-            s = default.copy()
-            s[names.index("height")] = h
-            s[names.index("proportions")] = p
-            J = model.canonical(torch.tensor(s, dtype=torch.float32)).joints.numpy()
-            ln = np.array([np.linalg.norm(J[lookup[a]] - J[lookup[b]]) for a, b in limbs])
-            err = float(np.sum((np.log(ln) - np.log(mp_len)) ** 2))
-            if err < best_err:
-                best, best_err = s, err
+    base = model.default_shape.numpy().astype(np.float64)
+    base[names.index("age")] = ADULT_AGE
+    ok = np.isfinite(kp3d).all(axis=(1, 2))
+    if not ok.any():
+        return with_stature(model, base, height_m)
+    mp_len = np.array([np.median(np.linalg.norm(kp3d[ok, a] - kp3d[ok, b], axis=-1)) for a, b in limbs])
+    best, best_err = base, np.inf
+    for p in np.linspace(0.2, 0.8, 3):
+        s = base.copy()
+        s[names.index("proportions")] = p
+        s = with_stature(model, s, height_m)  # the height parameter changes proportions too
+        J = model.canonical(torch.tensor(s, dtype=torch.float32)).joints.numpy()
+        ln = np.array([np.linalg.norm(J[lookup[a]] - J[lookup[b]]) for a, b in limbs])
+        r = np.log(ln) - np.log(np.maximum(mp_len, 1e-6))
+        err = float(np.sum((r - np.median(r)) ** 2))
+        if err < best_err:
+            best, best_err = s, err
     return best
 
 
@@ -196,7 +245,10 @@ def init_camera_space(kp2d: np.ndarray, kp3d: np.ndarray, K: np.ndarray, scale: 
 
 
 def limb_scale(model, shape: np.ndarray, kp3d: np.ndarray) -> float:
-    """Ratio of the model's limb lengths to MediaPipe's (so the landmarks can be used at model size)."""
+    """Ratio of the model's skeleton to MediaPipe's: summed limb lengths (so the landmarks
+    can be used at model size). The landmarks' positions are MediaPipe's own (its hands and
+    feet are 24-37 % shorter than the model's bones), so the long limbs should set it: a
+    median of per-limb ratios moved the scene's scale by 2 % when two hand limbs were added."""
     mp_idx, bones = _mapped(model)
     lookup = {m: b for m, b in zip(mp_idx, bones)}
     limbs = [(a, b) for a, b in LIMBS if (a, b) != (2, 5)]
@@ -206,7 +258,7 @@ def limb_scale(model, shape: np.ndarray, kp3d: np.ndarray) -> float:
         return 1.0
     mp_len = np.array([np.median(np.linalg.norm(kp3d[ok, a] - kp3d[ok, b], axis=-1)) for a, b in limbs])
     ln = np.array([np.linalg.norm(J[lookup[a]] - J[lookup[b]]) for a, b in limbs])
-    return float(np.exp(np.median(np.log(ln / np.maximum(mp_len, 1e-6)))))
+    return float(ln.sum() / max(mp_len.sum(), 1e-6))
 
 
 def foot_sole_offsets(model, shape: np.ndarray) -> np.ndarray:

@@ -115,6 +115,11 @@ class Preprocess:
     body_iterations: int = 300
     """Optimiser iterations of the joint body fit."""
 
+    person_height: float | None = None
+    """The person's standing height in metres, if you know it. It sets the scene's metric
+    scale (every depth, the object's size): one view cannot tell a tall person far away
+    from a short one near. Default: 1.70 m, a typical adult."""
+
     max_planes: int = 4
     """At most this many planes from RANSAC on the sparse points (besides the ground)."""
 
@@ -186,6 +191,13 @@ class Preprocess:
                                   ("--person-threshold", self.person_threshold, 0.0, 1.0)):
             if not (math.isfinite(v) and lo <= v <= hi):
                 raise UserError(f"{option} must be between {lo:g} and {hi:g}, got {v:g}")
+        if self.person_height is not None:
+            from cogs.preprocess.bodyfit import STATURE_RANGE_M
+
+            lo, hi = STATURE_RANGE_M
+            if not (math.isfinite(self.person_height) and lo <= self.person_height <= hi):
+                raise UserError(f"--person-height is in metres, between {lo:g} and {hi:g} for the adult body model; "
+                                f"got {self.person_height:g}")
         if not math.isfinite(self.min_parallax) or self.min_parallax < 0:
             raise UserError(f"--min-parallax must be >= 0, got {self.min_parallax:g}")
         self.person_prompt()

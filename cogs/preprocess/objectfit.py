@@ -141,7 +141,7 @@ def fill_rotations(R: np.ndarray, has: np.ndarray, held: np.ndarray, carrier: np
 def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: np.ndarray, forearm_world: np.ndarray,
                   anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World rotations [T, 3, 3] with each carried stretch turned with the forearm that
-    holds it, and [T] bool: the frames so set.
+    holds it, and [T] int: the side (0 left, 1 right) carrying each frame so set, -1 elsewhere.
 
     A carried stretch is a run of masked frames ``held`` by a fitted hand (with the frames
     without a mask between them). Where the masked frame just before it, or just after it,
@@ -162,7 +162,7 @@ def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: 
     unchanged), and ``cogs demo`` does not preprocess."""
     T = len(R_world)
     R = R_world.copy()
-    carried = np.zeros(T, bool)
+    carried = np.full(T, -1)
     idx = np.flatnonzero(has)
     k = 0
     while k < len(idx):
@@ -180,7 +180,8 @@ def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: 
         k = e + 1
         if not len(sides) or (before is None and after is None):
             continue
-        F = forearm_world[:, int(np.bincount(sides, minlength=2).argmax())]
+        by = int(np.bincount(sides, minlength=2).argmax())
+        F = forearm_world[:, by]
         G0 = F[before].T @ R_world[before] if before is not None else None
         G1 = F[after].T @ R_world[after] if after is not None else None
         for t in range(a, b + 1):
@@ -189,8 +190,39 @@ def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: 
             else:
                 G = G0 if G0 is not None else G1
             R[t] = F[t] @ G
-        carried[a : b + 1] = True
+        carried[a : b + 1] = by
     return R, carried
+
+
+def carry_positions(t_world: np.ndarray, has: np.ndarray, carried_by: np.ndarray, palms_world: np.ndarray,
+                    forearm_world: np.ndarray) -> np.ndarray:
+    """World positions [T, 3] with the frames of a carried stretch that have no mask moved
+    with the carrying hand: t(t) = P(t) + F(t) o(t), the grasp offset o = F^T (t - P) taken at
+    the stretch's masked frames either side and interpolated (P: the palm of the carrying
+    side in ``palms_world`` [T, 2, 3], F: its forearm in ``forearm_world`` [T, 2, 3, 3]).
+    Elsewhere positions are unchanged. Interpolating the position itself through a gap lets
+    an object that a person brings towards the camera lag behind the hand (on the 60-frame
+    synthetic clip, 12 frames unmasked: 18-29 % of the depth off)."""
+    out = t_world.copy()
+    T = len(t_world)
+    t = 0
+    while t < T:
+        if has[t] or carried_by[t] < 0:
+            t += 1
+            continue
+        b = t
+        while b + 1 < T and not has[b + 1] and carried_by[b + 1] == carried_by[t]:
+            b += 1
+        p, n, s = t - 1, b + 1, int(carried_by[t])
+        # carry_in_hand begins and ends a stretch on masked frames of the same side
+        assert p >= 0 and n < T and has[p] and has[n] and carried_by[p] == s == carried_by[n]
+        P, F = palms_world[:, s], forearm_world[:, s]
+        o_p, o_n = F[p].T @ (t_world[p] - P[p]), F[n].T @ (t_world[n] - P[n])
+        for k in range(t, b + 1):
+            u = (k - p) / (n - p)
+            out[k] = P[k] + F[k] @ ((1 - u) * o_p + u * o_n)
+        t = b + 1
+    return out
 
 
 def silhouette(points_cam: np.ndarray, K: np.ndarray, shape: tuple[int, int]) -> np.ndarray | None:
@@ -816,13 +848,17 @@ def fit_object(
     for k, t in enumerate(idx):
         held[t] = near[idx[max(0, k - held_reach) : k + held_reach + 1]].any()
     # 5. Carried in a hand, from a frame whose rotation is known.
-    carried = np.zeros(T, bool)
+    carried_by = np.full(T, -1)
     if forearm_world is not None:
         resting = windows >= 0  # a hand at a resting object does not carry it yet
         anchor = has & (resting | (clear & ~held))
-        R_world, carried = carry_in_hand(R_world, has, held & ~resting, hand_side, forearm_world, anchor)
+        R_world, carried_by = carry_in_hand(R_world, has, held & ~resting, hand_side, forearm_world, anchor)
+    carried = carried_by >= 0
     R_world = fill_rotations(R_world, has | carried, held, carrier_world)
     t_world = np.einsum("tji,tj->ti", R_wc, t_obj_cam - t_wc)
+    if carried.any():
+        palms = 0.5 * (hand_points_world[:, :2] + hand_points_world[:, 2:4])
+        t_world = carry_positions(t_world, has, carried_by, palms, forearm_world)
     if ground is not None:
         n, d = ground
         h = t_world @ n + d
@@ -850,6 +886,9 @@ def fit_object(
     if T >= 3:
         n_key = max(2, min(T, (T + 1) // 2))
         p, v, qk = fit_keyframes(times, torch.tensor(t_world), torch.tensor(q), n_key, frame_weights=wts)
+        if carried.any():  # their positions, not their rotations (those are set below), count as partly hidden views
+            p, v, _ = fit_keyframes(times, torch.tensor(t_world), torch.tensor(q), n_key,
+                                    frame_weights=torch.tensor(np.where(has, weight, np.where(carried, 0.25, 1e-3)) + 1e-6))
         tk = torch.linspace(0, T - 1, n_key, dtype=torch.float64)
         ts, qs = sample_trajectory(tk, p, v, qk, times)
         t_world, q = ts.numpy(), qs.numpy()

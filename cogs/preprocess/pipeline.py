@@ -38,7 +38,7 @@ CACHE_VERSION = 1
 PERSONS_VERSION = 2  # of the persons step (2: a body the detector cannot find is followed without the face)
 TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
-OBJECT_POSE_VERSION = 4  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
+OBJECT_POSE_VERSION = 5  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
 
@@ -351,8 +351,12 @@ class _Runner:
                 "exhaustive_max_frames": cfg.exhaustive_max_frames,
             }, ["frames", "persons", "objects"], lambda lb: self._cameras(lb, ui, images, pe["masks"].astype(bool), obj_masks, K))
 
-            bo, bmeta = self._step(ui, 5, "body", {"model": cfg.body_model, "iterations": cfg.body_iterations}, ["persons", "cameras"],
-                                   lambda lb: self._body(lb, ui, images, pe, cam, cmeta, K))
+            from cogs.preprocess.bodyfit import ADULT_STATURE_M
+
+            stature = cfg.person_height or ADULT_STATURE_M
+            bo, bmeta = self._step(ui, 5, "body", {"model": cfg.body_model, "iterations": cfg.body_iterations, "stature_m": stature},
+                                   ["persons", "cameras"],
+                                   lambda lb: self._body(lb, ui, images, pe, cam, cmeta, K, stature))
 
             # The fitted body's silhouette as a second source of evidence for both masks; they
             # come out disjoint (one owner per pixel: the object wins).
@@ -592,7 +596,7 @@ class _Runner:
         meta = {"method": method, "summary": f"{method}: {n_reg}/{T} frames posed, {len(xyz)} points", "stats": stats}
         return {"world_to_camera": w2c, "registered": reg, "points_xyz": xyz, "points_rgb": rgb, "static": static}, meta
 
-    def _body(self, label, ui, images, pe, cam, cmeta, K):
+    def _body(self, label, ui, images, pe, cam, cmeta, K, stature_m: float):
         from cogs.body import load_body_model
         from cogs.preprocess import bodyfit as B
         from cogs.preprocess import sfm as S
@@ -604,7 +608,7 @@ class _Runner:
         update = ui.task(label, iters + max(20, iters // 4) + 2)
         model = load_body_model(cfg.body_model)
         kp2d, kp3d = pe["kp2d"].astype(np.float64), pe["kp3d"].astype(np.float64)
-        shape = B.choose_shape(model, kp3d)
+        shape = B.choose_shape(model, kp3d, height_m=stature_m)
         scale = B.limb_scale(model, shape, kp3d)
         R_cam, t_cam = B.init_camera_space(kp2d, kp3d, K, scale)
         kp3d_f = B.fill_missing(kp3d)
@@ -635,6 +639,7 @@ class _Runner:
         hand = [model.bone_index(b) for b in ("wrist.L", "wrist.R", "finger3-1.L", "finger3-1.R")]
         stats = {
             "scale_m_per_unit": al.scale, "ground_from": al.ground_source, "shape": shape.tolist(),
+            "stature_m": stature_m, "stature_from": "--person-height" if self.cfg.person_height else "adult prior",
             "reprojection_error_mean": float(np.nanmean(fit.reprojection_error)),
             "reprojection_error_max": float(np.nanmax(fit.reprojection_error)), "fit_seconds": time.perf_counter() - t0,
             **notes,
