@@ -38,6 +38,7 @@ CACHE_VERSION = 1
 PERSONS_VERSION = 2  # of the persons step (2: a body the detector cannot find is followed without the face)
 TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
+BODY_VERSION = 2  # of the body fit (`bodyfit.py`: 2, an adult of a given stature): bumping it redoes the body step
 OBJECT_POSE_VERSION = 5  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
@@ -354,7 +355,8 @@ class _Runner:
             from cogs.preprocess.bodyfit import ADULT_STATURE_M
 
             stature = cfg.person_height or ADULT_STATURE_M
-            bo, bmeta = self._step(ui, 5, "body", {"model": cfg.body_model, "iterations": cfg.body_iterations, "stature_m": stature},
+            bo, bmeta = self._step(ui, 5, "body", {"version": BODY_VERSION, "model": cfg.body_model, "iterations": cfg.body_iterations,
+                                                   "stature_m": stature},
                                    ["persons", "cameras"],
                                    lambda lb: self._body(lb, ui, images, pe, cam, cmeta, K, stature))
 
