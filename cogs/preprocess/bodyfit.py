@@ -126,7 +126,10 @@ def person_height_px(kp2d: np.ndarray) -> np.ndarray:
 # tall person far away from a short one near): its limbs made the 1.80 m synthetic person
 # 1.63 m, and the adults of the real development clips 1.22-1.62 m. The stature sets the
 # scene's metric scale, so every depth is off by its error; a user who knows the height
-# gives it (``cogs preprocess --person-height``).
+# gives it (``cogs preprocess --person-height``). A population figure, not fitted to a clip;
+# checked on the synthetic benchmark's default and 60-frame clips (a 1.80 m person: depth
+# scale 1.13 -> 1.05) and the six real development clips, whose adults MediaPipe had made
+# 1.22-1.62 m (docs/experiments/2026-11-27-stature-and-carried-positions.md).
 ADULT_STATURE_M = 1.70
 ADULT_AGE = 2.0 / 3.0  # Anny's "young" (adult) age anchor; 0.5 is between child and young
 STATURE_RANGE_M = (1.30, 2.38)  # what ``with_stature`` reaches at ADULT_AGE (``stature_range``, tested)
