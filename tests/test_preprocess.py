@@ -915,34 +915,28 @@ def test_body_fit_reprojects_synthetic_keypoints(body_model):
     assert err.max() < 0.15, err
 
 
-def test_body_shape_is_an_adult_of_the_given_stature_whatever_mediapipes_scale(body_model):
-    # MediaPipe's metric landmarks cannot tell a person's size: the same skeleton at 0.7 of
-    # its size must give the same body, as tall as asked, adult, with the landmarks' scale
-    # to the model measured.
+def test_body_shape_is_an_adult_of_the_given_stature_and_the_landmarks_scale_to_it(body_model):
+    # MediaPipe's metric landmarks cannot tell a person's size: the body is an adult as tall
+    # as asked, and the landmarks' own scale (here 0.7 of the body's) is measured against it.
     from cogs.preprocess import bodyfit as B
 
     m = body_model
     names = list(m.shape_names)
-    person = m.default_shape.numpy().astype(np.float64)
-    person[names.index("age")], person[names.index("gender")], person[names.index("proportions")] = B.ADULT_AGE, 0.0, 0.75
+    for height in (1.31, 1.62, 1.85, 2.37):
+        s = B.choose_shape(m, height_m=height)
+        assert abs(B.stature(m, s) - height) < 0.005
+        assert s[names.index("age")] == B.ADULT_AGE
+    assert B.stature(m, B.choose_shape(m)) == pytest.approx(B.ADULT_STATURE_M, abs=0.005)
+    np.testing.assert_allclose(B.stature_range(m), B.STATURE_RANGE_M, atol=0.01)
+    s = B.choose_shape(m, height_m=1.80)
     pose = torch.zeros(2, m.n_bones, 3)
     pose[1, m.bone_index("upperarm01.L"), 1] = 0.6
     with torch.no_grad():
-        _, joints = m.bone_transforms(pose.double(), torch.zeros(2, 3, dtype=torch.float64),
-                                      torch.tensor(person, dtype=torch.float64))
-    joints = joints.numpy()
+        _, joints = m.bone_transforms(pose.double(), torch.zeros(2, 3, dtype=torch.float64), torch.tensor(s, dtype=torch.float64))
     kp3d = np.zeros((2, 33, 3))  # the unmapped landmarks are not used
     for mp, b in B.MP_TO_ANNY:
-        kp3d[:, mp] = joints[:, m.bone_index(b)]
-    for height in (1.62, 1.85):
-        s = B.choose_shape(m, kp3d, height_m=height)
-        assert abs(B.stature(m, s) - height) < 0.005 and s[names.index("age")] == B.ADULT_AGE
-        np.testing.assert_allclose(B.choose_shape(m, 0.7 * kp3d, height_m=height), s)
-    s = B.choose_shape(m, 0.7 * kp3d, height_m=B.stature(m, person))
-    np.testing.assert_allclose(s, person, atol=1e-3)  # the person's own gender and proportions
-    assert B.limb_scale(m, s, 0.7 * kp3d) == pytest.approx(1 / 0.7, rel=1e-3)
-    assert B.stature(m, B.choose_shape(m, np.full((2, 33, 3), np.nan))) == pytest.approx(B.ADULT_STATURE_M, abs=0.005)
-    np.testing.assert_allclose(B.stature_range(m), B.STATURE_RANGE_M, atol=0.01)
+        kp3d[:, mp] = 0.7 * joints.numpy()[:, m.bone_index(b)]
+    assert B.limb_scale(m, s, kp3d) == pytest.approx(1 / 0.7, rel=1e-3)
 
 
 def test_preprocess_refuses_a_person_height_out_of_reach(tmp_path, capsys):

@@ -5,9 +5,9 @@ Inputs are MediaPipe's 2D keypoints (pixels + visibility) and metric 3D "world" 
 a ``BodyTrack`` (Anny by default): one shape for the whole clip, a pose and a translation
 per frame.
 
-1. **Shape** (``choose_shape``): an adult of a given stature (``ADULT_STATURE_M`` unless the
-   user knows it) whose limb proportions best match the median MediaPipe 3D limbs. The
-   stature sets the scene's metric scale; MediaPipe's own metric size is not trusted for it.
+1. **Shape** (``choose_shape``): an average adult of a given stature (``ADULT_STATURE_M``
+   unless the user knows it). The stature sets the scene's metric scale; MediaPipe's own
+   metric size is not trusted for it, nor its limb ratios for the proportions.
 2. **Camera-space initialisation** (``init_camera_space``): the root orientation from the
    3D torso frame; the root position by the linear perspective solve that places the
    metric 3D landmarks on their 2D keypoints (this is where depth comes from: the body's
@@ -28,7 +28,6 @@ knees, ankles, foot tips and eyes, to Anny's bone heads (``MP_TO_ANNY``).
 
 from __future__ import annotations
 
-import itertools
 import logging
 from dataclasses import dataclass
 
@@ -187,40 +186,20 @@ def with_stature(model, shape: np.ndarray, height_m: float, tol_m: float = 1e-4)
     return s
 
 
-def choose_shape(model, kp3d: np.ndarray, height_m: float = ADULT_STATURE_M) -> np.ndarray:
-    """Adult phenotype [S], ``height_m`` tall, whose limb proportions best match MediaPipe's 3D limbs.
+def choose_shape(model, height_m: float = ADULT_STATURE_M) -> np.ndarray:
+    """Adult phenotype [S], ``height_m`` tall: Anny's young age anchor, its other phenotype
+    parameters at their midpoints, the height parameter set to the stature.
 
-    Proportions only: the limb lengths (median over frames) are compared after removing their
-    common scale, over a grid of Anny's gender and proportions parameters (both change limb
-    ratios); the stature is given (see ``ADULT_STATURE_M``). Anny's shape is not
-    differentiable through ``bone_transforms``, hence the grid. On the synthetic clips and
-    the real development clips it lowered the body fit's 2D error against 3 proportions at
-    gender 0.5 in 5 of 6 (docs/experiments/2026-11-27-stature-and-carried-positions.md).
-    """
-    mp_idx, bones = _mapped(model)
-    lookup = {m: b for m, b in zip(mp_idx, bones)}
-    limbs = [(a, b) for a, b in LIMBS if a in lookup and b in lookup and (a, b) != (2, 5)]
-    names = list(model.shape_names)
-    base = model.default_shape.numpy().astype(np.float64)
-    base[names.index("age")] = ADULT_AGE
-    ok = np.isfinite(kp3d).all(axis=(1, 2))
-    if not ok.any():
-        return with_stature(model, base, height_m)
-    mp_len = np.array([np.median(np.linalg.norm(kp3d[ok, a] - kp3d[ok, b], axis=-1)) for a, b in limbs])
-    best, best_err = with_stature(model, base, height_m), np.inf
-    for g, p in itertools.product((0.0, 0.5, 1.0), np.linspace(0.0, 1.0, 5)):
-        s = base.copy()
-        s[names.index("gender")], s[names.index("proportions")] = g, p
-        s = with_stature(model, s, height_m)  # the height parameter changes proportions too
-        if abs(stature(model, s) - height_m) > 1e-3:  # out of this phenotype's reach (gender 0.5 reaches the whole range)
-            continue
-        J = model.canonical(torch.tensor(s, dtype=torch.float32)).joints.numpy()
-        ln = np.array([np.linalg.norm(J[lookup[a]] - J[lookup[b]]) for a, b in limbs])
-        r = np.log(ln) - np.log(np.maximum(mp_len, 1e-6))
-        err = float(np.sum((r - np.median(r)) ** 2))
-        if err < best_err:
-            best, best_err = s, err
-    return best
+    MediaPipe's limb ratios do not choose the proportions. Chosen over gender x proportions
+    by scale-free limb ratios, they picked phenotypes at the grid's edges and, on 12 frames
+    of the real basketball clip, a body with 1.8x the neutral one's 2D error (0.052 against
+    0.029 of the height); over 3 proportions at gender 0.5 (the earlier grid), no better
+    than neutral (within 0.0001 of the height, or worse) on the 2 synthetic clips, 4 real
+    development clips and that one
+    (docs/experiments/2026-11-27-stature-and-carried-positions.md)."""
+    s = model.default_shape.numpy().astype(np.float64)
+    s[list(model.shape_names).index("age")] = ADULT_AGE
+    return with_stature(model, s, height_m)
 
 
 def _torso_rotation(kp3d_t: np.ndarray) -> np.ndarray:

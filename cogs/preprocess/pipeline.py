@@ -38,7 +38,7 @@ CACHE_VERSION = 1
 PERSONS_VERSION = 2  # of the persons step (2: a body the detector cannot find is followed without the face)
 TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
-BODY_VERSION = 2  # of the body fit (`bodyfit.py`: 2, an adult of a given stature): bumping it redoes the body step
+BODY_VERSION = 3  # of the body fit (`bodyfit.py`; 3: an average adult of a given stature): bumping it redoes the body step
 OBJECT_POSE_VERSION = 5  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
@@ -610,7 +610,7 @@ class _Runner:
         update = ui.task(label, iters + max(20, iters // 4) + 2)
         model = load_body_model(cfg.body_model)
         kp2d, kp3d = pe["kp2d"].astype(np.float64), pe["kp3d"].astype(np.float64)
-        shape = B.choose_shape(model, kp3d, height_m=stature_m)
+        shape = B.choose_shape(model, height_m=stature_m)
         scale = B.limb_scale(model, shape, kp3d)
         R_cam, t_cam = B.init_camera_space(kp2d, kp3d, K, scale)
         kp3d_f = B.fill_missing(kp3d)
