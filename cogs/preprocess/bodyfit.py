@@ -127,7 +127,7 @@ def person_height_px(kp2d: np.ndarray) -> np.ndarray:
 # scene's metric scale, so every depth is off by its error; a user who knows the height
 # gives it (``cogs preprocess --person-height``). A population figure, not fitted to a clip;
 # checked on the synthetic benchmark's default and 60-frame clips (a 1.80 m person: depth
-# scale 1.13 -> 1.05) and the six real development clips, whose adults MediaPipe had made
+# scale 1.13 -> 1.07) and the six real development clips, whose adults MediaPipe had made
 # 1.22-1.62 m (docs/experiments/2026-11-27-stature-and-carried-positions.md).
 ADULT_STATURE_M = 1.70
 ADULT_AGE = 2.0 / 3.0  # Anny's "young" (adult) age anchor; 0.5 is between child and young
