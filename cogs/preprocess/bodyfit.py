@@ -73,7 +73,7 @@ class FitWeights:
 
     reprojection: float = 1.0
     direction_3d: float = 0.01
-    smooth: float = 0.05  # on accelerations in units of a 1.625 m body (Anny's default, where it was set)
+    smooth: float = 0.05  # on accelerations in units of a SMOOTH_STATURE_M body
     pose_prior: float = 1e-4
     ground_penetration: float = 10.0
     ground_contact: float = 0.05
@@ -131,6 +131,7 @@ def person_height_px(kp2d: np.ndarray) -> np.ndarray:
 # 1.22-1.62 m (docs/experiments/2026-11-27-stature-and-carried-positions.md).
 ADULT_STATURE_M = 1.70
 ADULT_AGE = 2.0 / 3.0  # Anny's "young" (adult) age anchor; 0.5 is between child and young
+SMOOTH_STATURE_M = 1.625  # body accelerations are smoothed in units of this height (Anny's default, where the weight was set)
 STATURE_RANGE_M = (1.30, 2.38)  # what ``with_stature`` reaches at ADULT_AGE (``stature_range``, tested)
 
 
@@ -140,13 +141,18 @@ def stature(model, shape: np.ndarray) -> float:
     return float(z.max() - z.min())
 
 
+def _average_adult(model) -> np.ndarray:
+    """Anny's young age anchor, every other phenotype parameter at its midpoint."""
+    s = model.default_shape.numpy().astype(np.float64)
+    s[list(model.shape_names).index("age")] = ADULT_AGE
+    return s
+
+
 def stature_range(model) -> tuple[float, float]:
     """Shortest and tallest adult ``choose_shape`` can make (metres)."""
-    names = list(model.shape_names)
-    s = model.default_shape.numpy().astype(np.float64)
-    s[names.index("age")] = ADULT_AGE
-    lo, hi = s.copy(), s.copy()
-    lo[names.index("height")], hi[names.index("height")] = 0.0, 1.0
+    k = list(model.shape_names).index("height")
+    lo, hi = _average_adult(model), _average_adult(model)
+    lo[k], hi[k] = 0.0, 1.0
     return stature(model, lo), stature(model, hi)
 
 
@@ -178,9 +184,9 @@ def with_stature(model, shape: np.ndarray, height_m: float, tol_m: float = 1e-4)
             lo, f_lo = x, f
         else:
             hi, f_hi = x, f
-        if f_lo < 0.0 < f_hi and abs(f_hi) > 2 * abs(f_lo):  # keep false position from stalling on one end
+        if abs(f_hi) > 2 * abs(f_lo):  # keep false position from stalling on one end
             f_hi *= 0.5
-        elif f_lo < 0.0 < f_hi and abs(f_lo) > 2 * abs(f_hi):
+        elif abs(f_lo) > 2 * abs(f_hi):
             f_lo *= 0.5
     s[k] = x
     return s
@@ -197,9 +203,7 @@ def choose_shape(model, height_m: float = ADULT_STATURE_M) -> np.ndarray:
     than neutral (within 0.0001 of the height, or worse) on the 2 synthetic clips, 4 real
     development clips and that one
     (docs/experiments/2026-11-27-stature-and-carried-positions.md)."""
-    s = model.default_shape.numpy().astype(np.float64)
-    s[list(model.shape_names).index("age")] = ADULT_AGE
-    return with_stature(model, s, height_m)
+    return with_stature(model, _average_adult(model), height_m)
 
 
 def _torso_rotation(kp3d_t: np.ndarray) -> np.ndarray:
@@ -336,7 +340,7 @@ def fit_body(
     # Scale-free smoothness: a taller body (or a larger world) moves its joints further for
     # the same motion; in metres the term weighed 1.4x more on a 1.70 m body than on a
     # 1.42 m one (the real loading clip's 2D error at 1.70 m: 0.0327 -> 0.0319 of the height).
-    body_scale = stature(model, shape) / 1.625
+    body_scale = stature(model, shape) / SMOOTH_STATURE_M
     foot_idx = [model.bone_index(b) for b in FOOT_BONES]
     sole = torch.tensor(foot_sole_offsets(model, shape), dtype=dt)
     if ground is not None:
