@@ -1351,6 +1351,29 @@ def test_a_hidden_carried_object_moves_with_the_hand_that_holds_it():
     np.testing.assert_array_equal(carry_positions(guess, has, np.full(T, -1), palms, forearms), guess)  # not carried
 
 
+def test_the_carrying_hand_is_the_one_the_object_stays_fixed_to():
+    # The right hand carries the object on an arc, turning it; the free left hand comes
+    # close to it and is the nearer one in most frames, yet moves on its own: the object
+    # keeps its grasp on the right forearm only.
+    from cogs.preprocess.objectfit import carrying_side
+
+    T = 10
+    u = np.arange(T) / (T - 1)
+    palm_r = np.stack([0.4 * np.sin(np.pi * u), -0.5 * u, 1.0 + 0.3 * u], 1)
+    fore_r = np.stack([_rot_about(np.array([0.0, 0.0, 1.0]), 120.0 * x) for x in u])
+    obj = palm_r + fore_r @ np.array([0.0, 0.15, 0.0])
+    palm_l = obj + np.stack([0.05 * np.cos(5 * u), 0.08 * np.sin(7 * u), -0.05 + 0.1 * u], 1)  # near, but not holding
+    fore_l = np.stack([_rot_about(np.array([1.0, 0.0, 0.0]), 40.0 * np.sin(4 * x)) for x in u])
+    palms, forearms = np.stack([palm_l, palm_r], 1), np.stack([fore_l, fore_r], 1)
+    nearest = np.array([0, 0, 1, 0, 0, 0, 1, 0, 0, 0])  # the image's nearest hand: mostly the free one
+    frames = np.arange(T)
+    assert carrying_side(frames, nearest, obj, palms, forearms) == 1
+    assert carrying_side(frames, nearest, obj, np.stack([palm_r, palm_l], 1), np.stack([fore_r, fore_l], 1)) == 0  # sides swapped
+    # Without positions, or over fewer than three frames, the nearest hand in most frames.
+    assert carrying_side(frames, nearest) == 0
+    assert carrying_side(frames[:2], np.array([1, 1] + [0] * 8), obj, palms, forearms) == 1
+
+
 def _rot_about(axis: np.ndarray, deg: float) -> np.ndarray:
     from cogs.geometry.rotations import axis_angle_to_rotmat
 

@@ -138,16 +138,44 @@ def fill_rotations(R: np.ndarray, has: np.ndarray, held: np.ndarray, carrier: np
     return R
 
 
+def carrying_side(frames: np.ndarray, side: np.ndarray, positions: np.ndarray | None = None, palms_world: np.ndarray | None = None,
+                  forearm_world: np.ndarray | None = None) -> int:
+    """The hand (0 left, 1 right) carrying the object over a held stretch's masked ``frames``.
+
+    With the object's world ``positions`` [T, 3] and both hands' ``palms_world`` [T, 2, 3]
+    and ``forearm_world`` [T, 2, 3, 3], over at least three frames: the hand the object stays
+    fixed to, i.e. whose forearm frame holds the object at the steadiest offset from its
+    palm (the grasp that ``carry_in_hand`` and ``carry_positions`` assume). Otherwise, or
+    where that does not single one out, the hand ``side`` [T] finds nearest the mask in most
+    of them. Nearest in the image is a weak cue where both hands are at the object (a box
+    held against the body, the other hand steadying it): on the synthetic video benchmark's
+    default clip it picked the free hand in 10 of 18 frames."""
+    near = side[frames]
+    near = near[near >= 0]
+    votes = np.bincount(near, minlength=2)
+    if positions is None or palms_world is None or forearm_world is None or len(frames) < 3:
+        return int(votes.argmax())
+    spread = []
+    for s in (0, 1):
+        o = np.einsum("tji,tj->ti", forearm_world[frames, s], positions[frames] - palms_world[frames, s])
+        spread.append(float(np.linalg.norm(o - np.median(o, axis=0), axis=1).mean()))
+    log.debug("carrying hand: offset spread left %.3f, right %.3f; nearest %s", *spread, votes.tolist())
+    return int(np.argmin(spread))
+
+
 def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: np.ndarray, forearm_world: np.ndarray,
-                  anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  anchor: np.ndarray, positions: np.ndarray | None = None,
+                  palms_world: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """World rotations [T, 3, 3] with each carried stretch turned with the forearm that
     holds it, and [T] int: the side (0 left, 1 right) carrying each frame so set, -1 elsewhere.
 
     A carried stretch is a run of masked frames ``held`` by a fitted hand (with the frames
     without a mask between them). Where the masked frame just before it, or just after it,
     is an ``anchor`` (a rotation to trust: the object resting or clearly seen, not in a
-    hand), the grasp fixes the object to the forearm of the hand ``side`` [T] finds at it
-    most often (``forearm_world`` [T, 2, 3, 3], left and right): R(t) = F(t) G with the
+    hand), the grasp fixes the object to the forearm of the carrying hand
+    (``carrying_side``: with the silhouettes' world ``positions`` [T, 3] and the
+    ``palms_world`` [T, 2, 3], the one the object stays fixed to; otherwise the one ``side``
+    [T] finds at it most often; ``forearm_world`` [T, 2, 3, 3], left and right): R(t) = F(t) G with the
     grasp offset G = F(a)^T R(a) at the anchor a before it, or at the one after it, or the
     two interpolated along the stretch where both exist (a regrasp in between). Stretches
     without an anchor are left as they are: their offset, and which of a box's symmetric
@@ -173,14 +201,13 @@ def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: 
         while e + 1 < len(idx) and held[idx[e + 1]]:
             e += 1
         a, b = int(idx[k]), int(idx[e])
-        sides = side[idx[k : e + 1]]
-        sides = sides[sides >= 0]
+        stretch = idx[k : e + 1]
         before = int(idx[k - 1]) if k > 0 and anchor[idx[k - 1]] else None
         after = int(idx[e + 1]) if e + 1 < len(idx) and anchor[idx[e + 1]] else None
         k = e + 1
-        if not len(sides) or (before is None and after is None):
+        if not (side[stretch] >= 0).any() or (before is None and after is None):
             continue
-        by = int(np.bincount(sides, minlength=2).argmax())
+        by = carrying_side(stretch, side, positions, palms_world, forearm_world)
         F = forearm_world[:, by]
         G0 = F[before].T @ R_world[before] if before is not None else None
         G1 = F[after].T @ R_world[after] if after is not None else None
@@ -848,16 +875,16 @@ def fit_object(
     for k, t in enumerate(idx):
         held[t] = near[idx[max(0, k - held_reach) : k + held_reach + 1]].any()
     # 5. Carried in a hand, from a frame whose rotation is known.
+    t_world = np.einsum("tji,tj->ti", R_wc, t_obj_cam - t_wc)
+    palms = 0.5 * (hand_points_world[:, :2] + hand_points_world[:, 2:4])
     carried_by = np.full(T, -1)
     if forearm_world is not None:
         resting = windows >= 0  # a hand at a resting object does not carry it yet
         anchor = has & (resting | (clear & ~held))
-        R_world, carried_by = carry_in_hand(R_world, has, held & ~resting, hand_side, forearm_world, anchor)
+        R_world, carried_by = carry_in_hand(R_world, has, held & ~resting, hand_side, forearm_world, anchor, t_world, palms)
     carried = carried_by >= 0
     R_world = fill_rotations(R_world, has | carried, held, carrier_world)
-    t_world = np.einsum("tji,tj->ti", R_wc, t_obj_cam - t_wc)
     if carried.any():
-        palms = 0.5 * (hand_points_world[:, :2] + hand_points_world[:, 2:4])
         t_world = carry_positions(t_world, has, carried_by, palms, forearm_world)
     if ground is not None:
         n, d = ground

@@ -39,7 +39,7 @@ PERSONS_VERSION = 2  # of the persons step (2: a body the detector cannot find i
 TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
 BODY_VERSION = 3  # of the body fit (`bodyfit.py`; 3: an average adult of a given stature): bumping it redoes the body step
-OBJECT_POSE_VERSION = 5  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
+OBJECT_POSE_VERSION = 6  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
 
