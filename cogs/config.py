@@ -105,6 +105,8 @@ class LossWeights:
     pose_prior_rotation: float = 0.02
     """Rotation part (geodesic, radians) of the pose prior."""
     acceleration: float = 50.0
+    """Mean squared second difference of the object's positions (m per frame^2), of its
+    departure from the initial keyframed trajectory (``ObjectConfig.smooth_about_initial``)."""
     rotation_smoothness: float = 0.05
     rest_translation: float = 5.0
     """Mean movement (m) between consecutive frames where the initial trajectory is at rest

@@ -341,6 +341,56 @@ def test_rest_losses_hold_a_resting_object_still_and_leave_the_motion():
     assert float(quat_geodesic_angle(q_moving, q_moving_before).max()) < 1e-3
 
 
+def test_the_smoothness_keeps_a_bouncing_ball_bouncing_and_still_resists_new_wiggles():
+    # A dribbled ball at 12 fps: down to the floor and back up to the hand every 6 frames.
+    # The training's motion terms (pose prior + acceleration, the default weights) must not
+    # flatten the bounces the initial trajectory shows (that left the basketball clip's
+    # trained ball up to 65 px off its masks), yet still penalise wiggles the training adds.
+    from cogs.branches.object import ObjectBranch, ObjectConfig, fit_initial_trajectory
+    from cogs.config import LossWeights
+
+    T = 36
+    tau = torch.arange(T, dtype=torch.float64)
+    height = 0.9 * (1 - torch.abs(torch.sin(torch.pi * tau / 6.0)))  # 0.9 m at the hand, 0 at the floor
+    prior_t = torch.stack([0.02 * tau, torch.full_like(tau, 3.0), height], -1).float()
+    prior_q = torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(T, 1)
+    floor = (tau % 6 == 3).nonzero().flatten()
+    w = LossWeights()
+    weights = {"pose_prior": w.pose_prior, "pose_prior_rotation": w.pose_prior_rotation, "acceleration": w.acceleration}
+    g = torch.Generator().manual_seed(0)
+    pts = 0.1 * torch.randn(100, 3, generator=g)
+
+    def trained(about_initial: bool) -> tuple[ObjectBranch, float]:
+        cfg = ObjectConfig(frames_per_keyframe=1.0, smooth_about_initial=about_initial)
+        key_times, p, v, q = fit_initial_trajectory(prior_t.double(), prior_q.double(), cfg)
+        gs = GaussianSet.from_points(pts, torch.full_like(pts, 0.5), torch.full((100, 3), 0.01))
+        obj = ObjectBranch(gs, torch.zeros(3), key_times, p, v, q, prior_t, prior_q, cfg)
+        opt = torch.optim.Adam([obj.key_p, obj.key_v], lr=5e-3)
+        for _ in range(300):
+            opt.zero_grad()
+            sum(obj.regularisers(weights, tau.long()).values()).backward()
+            opt.step()
+        with torch.no_grad():
+            tr, _ = obj.pose(tau.float())
+        return obj, float((tr[floor, 2] - prior_t[floor, 2]).abs().max())
+
+    kept, lift_kept = trained(True)
+    flattened, lift_flat = trained(False)
+    assert lift_kept < 0.02 and lift_flat > 0.2, (lift_kept, lift_flat)  # metres above the floor at the bounces
+    # Wiggles the training would add on top of the bounces still cost.
+    with torch.no_grad():
+        acc0, _ = kept.smoothness_losses()
+        kept.key_p[::2, 1] += 0.02
+        acc1, _ = kept.smoothness_losses()
+    assert float(acc1) > 100 * float(acc0) + 1e-6
+    # A model saved before the reference existed loads smoothed towards straight lines, as trained.
+    state = {k: v for k, v in flattened.state_dict().items() if k != "ref_t"}
+    from types import SimpleNamespace
+
+    old = ObjectBranch.from_state(state, SimpleNamespace(object=ObjectConfig()))
+    assert float(old.ref_t.abs().max()) == 0.0
+
+
 def test_held_out_interpolation_weights_reproduce_cubic_motion():
     from cogs.branches.held_out import lagrange_neighbours
 
