@@ -62,14 +62,16 @@ def test_cropped_fit_is_the_whole_frame_fit(unrefitted):
     model, _, scene = load_run(unrefitted)
     t = int(scene.split["train"][3])
     vm, K, img = _frame(scene, t)
-    opts = PoseRefit(steps=10)
+    # Three Adam steps: equal up to float summation order (the crop sums fewer pixels).
+    # Over more steps Adam's normalised updates amplify those last-digit differences where a
+    # gradient is near zero (after ten steps some corrections differ by a fifth of a step,
+    # while after three they agree to 1e-7), which says nothing about the crop.
+    opts = PoseRefit(steps=3)
     fit = fit_frame_pose(model, img, vm, K, t, opts)
     dp, dt = _whole_frame_fit(model, img, vm, K, t, opts)
     assert fit.dpose.abs().max() > 1e-3  # it did move
-    # Equal up to float summation order (the crop sums fewer pixels), which Adam's
-    # normalised steps carry along: within 2% of the largest correction.
-    torch.testing.assert_close(fit.dpose, dp, rtol=0, atol=0.02 * float(dp.abs().max()))
-    torch.testing.assert_close(fit.dtransl, dt, rtol=0, atol=0.02 * float(dt.abs().max()))
+    torch.testing.assert_close(fit.dpose, dp, rtol=0, atol=1e-3 * float(dp.abs().max()))
+    torch.testing.assert_close(fit.dtransl, dt, rtol=0, atol=1e-3 * float(dt.abs().max()))
     assert fit.loss_last < fit.loss_first
 
 
