@@ -145,11 +145,13 @@ def carrying_side(frames: np.ndarray, side: np.ndarray, positions: np.ndarray | 
     With the object's world ``positions`` [T, 3] and both hands' ``palms_world`` [T, 2, 3]
     and ``forearm_world`` [T, 2, 3, 3], over at least three frames: the hand the object stays
     fixed to, i.e. whose forearm frame holds the object at the steadiest offset from its
-    palm (the grasp that ``carry_in_hand`` and ``carry_positions`` assume). Otherwise, or
-    where that does not single one out, the hand ``side`` [T] finds nearest the mask in most
-    of them. Nearest in the image is a weak cue where both hands are at the object (a box
-    held against the body, the other hand steadying it): on the synthetic video benchmark's
-    default clip it picked the free hand in 10 of 18 frames."""
+    palm (the grasp that ``carry_in_hand`` and ``carry_positions`` assume). Otherwise the
+    hand ``side`` [T] finds nearest the mask in most of them. Nearest in the image is a weak
+    cue where both hands are at the object (a box held against the body, the other hand
+    steadying it): on the synthetic video benchmark's default clip it picked the free hand
+    (10 of 18 frames), while the offsets' spreads (0.20 m left, 0.16 m right) pick the
+    carrier there and on the 60- and 30-frame clips
+    (docs/experiments/2026-11-28-carrying-hand.md)."""
     near = side[frames]
     near = near[near >= 0]
     votes = np.bincount(near, minlength=2)
