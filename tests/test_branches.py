@@ -346,6 +346,8 @@ def test_the_smoothness_keeps_a_bouncing_ball_bouncing_and_still_resists_new_wig
     # The training's motion terms (pose prior + acceleration, the default weights) must not
     # flatten the bounces the initial trajectory shows (that left the basketball clip's
     # trained ball up to 65 px off its masks), yet still penalise wiggles the training adds.
+    from types import SimpleNamespace
+
     from cogs.branches.object import ObjectBranch, ObjectConfig, fit_initial_trajectory
     from cogs.config import LossWeights
 
@@ -385,8 +387,6 @@ def test_the_smoothness_keeps_a_bouncing_ball_bouncing_and_still_resists_new_wig
     assert float(acc1) > 100 * float(acc0) + 1e-6
     # A model saved before the reference existed loads smoothed towards straight lines, as trained.
     state = {k: v for k, v in flattened.state_dict().items() if k != "ref_t"}
-    from types import SimpleNamespace
-
     old = ObjectBranch.from_state(state, SimpleNamespace(object=ObjectConfig()))
     assert float(old.ref_t.abs().max()) == 0.0
 

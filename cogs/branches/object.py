@@ -325,11 +325,11 @@ class ObjectBranch(Branch):
         dq = quat_geodesic_angle(q[1:], q[:-1])[pair].mean()
         return dt, dq
 
-    def smoothness_losses(self, substeps: int = 1) -> tuple[Tensor, Tensor]:
-        """(acceleration, rotation smoothness) of the trajectory sampled every frame/substeps."""
-        tau = torch.arange(0, (self.n_frames - 1) * substeps + 1, dtype=torch.float32, device=self.centre.device) / substeps
-        tr, q = self.pose(tau)
-        if substeps == 1 and self.cfg.smooth_about_initial:
+    def smoothness_losses(self) -> tuple[Tensor, Tensor]:
+        """(acceleration, rotation smoothness) of the trajectory sampled every frame; the
+        acceleration of its departure from ``ref_t`` with ``smooth_about_initial``."""
+        tr, q = self.pose(torch.arange(self.n_frames, dtype=torch.float32, device=self.centre.device))
+        if self.cfg.smooth_about_initial:
             tr = tr - self.ref_t
         # Angular acceleration, not speed: a steady spin in the hand costs nothing.
         return acceleration_penalty(tr), rotation_smoothness(q, order=2)
