@@ -22,6 +22,7 @@ as one message, exit status 2, no traceback.
 
 from __future__ import annotations
 
+import signal
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -109,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     from cogs.log import console, setup_logging
 
     setup_logging()
+    if argv is None and hasattr(signal, "SIGPIPE"):
+        signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `cogs ... --help | head` ends quietly, as Unix tools do
     cmd = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="cogs")
     try:
         code = cmd.run()

@@ -212,6 +212,9 @@ class TrainConfig:
     checkpoint_every: int = 500
     log_every: int = 10
     backend: str = "auto"
+    fused_adam: bool = True
+    """On CUDA, Adam's update as one fused kernel per parameter group (the host keeps
+    torch's default update; see `cogs.train.trainer.make_adam`)."""
     seed: int = 0
     # Ablation switches (CoGS Table: each removes one component).
     use_human_seed: bool = True

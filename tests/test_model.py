@@ -113,3 +113,23 @@ def test_training_and_rendering_on_cuda(small_synthetic, tmp_path):
     assert on_gpu.rgb.device.type == "cuda"
     assert (on_gpu.rgb.cpu() - on_cpu.rgb).abs().mean() < 2e-3
     assert main(["eval", "--run", str(run), "--device", "cuda", "--no-renders", "--pose-fit-steps", "2"]) == 0
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device (runs where one is lent)")
+def test_on_cuda_adam_is_fused_and_a_host_checkpoint_resumes_fused():
+    from cogs.train.trainer import adopt_fusion, make_adam
+
+    cuda = torch.device("cuda")
+    p = torch.nn.Parameter(torch.randn(6))
+    host = make_adam([{"params": [p], "lr": 0.1}], torch.device("cpu"))
+    p.grad = torch.ones(6)
+    host.step()
+    q = torch.nn.Parameter(p.detach().to(cuda))
+    gpu = make_adam([{"params": [q], "lr": 0.1}], cuda)
+    assert gpu.param_groups[0]["fused"]
+    gpu.load_state_dict(host.state_dict())
+    adopt_fusion(gpu, cuda)
+    q.grad = torch.ones(6, device=cuda)
+    gpu.step()
+    assert gpu.param_groups[0]["fused"] and float(gpu.state[q]["step"]) == 2.0
+    assert torch.allclose(gpu.state[q]["exp_avg"].cpu(), torch.full((6,), 0.19))

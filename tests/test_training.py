@@ -214,3 +214,24 @@ def test_ablation_table_stars_only_what_lies_beyond_the_seed_spread():
     # A row written before seeds were counted (metrics only) is one seed: nothing starred.
     old = table_rows({"full": {"metrics": m(31.0, 0.9, 600)}, "worse": {"metrics": m(20.0, 0.5, 300)}})
     assert [r["n_seeds"] for r in old] == [1, 1] and old[1]["beyond_spread"] == []
+
+
+def test_an_optimizer_resumed_on_the_host_drops_the_gpus_fused_update():
+    """A checkpoint written on CUDA carries Adam's `fused` flag; the host resumes it with
+    its own (unfused) update, and keeps stepping from the saved moments."""
+    from cogs.train.trainer import adopt_fusion, make_adam
+
+    p = torch.nn.Parameter(torch.randn(6, generator=torch.Generator().manual_seed(0)))
+    writer = torch.optim.Adam([{"params": [p], "lr": 0.1}], eps=1e-15, fused=True)  # as a GPU run saves it
+    p.grad = torch.ones(6)
+    writer.step()
+    q = torch.nn.Parameter(p.detach().clone())
+    reader = make_adam([{"params": [q], "lr": 0.1}], torch.device("cpu"))
+    assert not reader.param_groups[0]["fused"]
+    reader.load_state_dict(writer.state_dict())
+    adopt_fusion(reader, torch.device("cpu"))
+    assert not reader.param_groups[0]["fused"]
+    q.grad = torch.ones(6)
+    reader.step()
+    assert float(reader.state[q]["step"]) == 2.0
+    assert torch.allclose(reader.state[q]["exp_avg"], torch.full((6,), 0.19))  # 0.9 * 0.1 + 0.1

@@ -59,6 +59,30 @@ def run_is_finished(run: Path) -> bool:
     return read_json(summary).get("stages") == stage_names(load_config(config))
 
 
+def make_adam(groups: list[dict], device: torch.device, fused: bool = True) -> torch.optim.Adam:
+    """The branches' Adam. On CUDA (with `fused`) the update is one fused kernel per
+    parameter group instead of torch's multi-tensor passes: a GPU step is bound by the host
+    issuing small kernels (docs/experiments/2026-11-27-gpu-step-profile.md). The host keeps
+    torch's default update, so CPU runs stay bit-identical to earlier ones."""
+    if fused and torch.device(device).type == "cuda":
+        return torch.optim.Adam(groups, eps=1e-15, fused=True)
+    return torch.optim.Adam(groups, eps=1e-15)
+
+
+def adopt_fusion(opt: torch.optim.Optimizer, device: torch.device, fused: bool = True) -> None:
+    """After `load_state_dict`: the saved groups carry the writer's `fused` flag (a run
+    resumed on another device), so set the one this device takes."""
+    on = bool(fused and torch.device(device).type == "cuda")
+    for g in opt.param_groups:
+        g["fused"] = on or None
+        if on:
+            g["foreach"] = None
+            for p in g["params"]:  # the fused kernel takes its step count on the parameter's device
+                st = opt.state.get(p)
+                if st is not None and "step" in st:
+                    st["step"] = torch.as_tensor(st["step"], dtype=torch.float32).to(p.device)
+
+
 class Trainer:
     def __init__(self, scene: Scene, cfg: TrainConfig, out: Path, resume: bool = False, show_progress: bool = True,
                  device: str | torch.device = "cpu", checkpoint: str | None = None, max_side: int | None = None):
@@ -131,7 +155,7 @@ class Trainer:
             groups = branch.param_groups(self.cfg.lr, self.extent)
             for g in groups:
                 g["base_lr"] = g["lr"]
-            opts[b] = torch.optim.Adam(groups, eps=1e-15)
+            opts[b] = make_adam(groups, self.device, self.cfg.fused_adam)
         return opts
 
     def _setup_stage(self, spec: StageSpec) -> None:
@@ -373,6 +397,7 @@ class Trainer:
                 for k, sd in payload["optimizers"].items():
                     try:
                         self.optimizers[k].load_state_dict(sd)
+                        adopt_fusion(self.optimizers[k], self.device, self.cfg.fused_adam)
                     except (KeyError, ValueError) as e:
                         raise UserError(f"--resume: {folder / 'last.pt'} was written by an older cogs whose "
                                         f"optimizers differ ({e}); evaluate it as it is, or retrain") from None
