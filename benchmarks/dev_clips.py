@@ -101,6 +101,8 @@ def main() -> None:
     ap.add_argument("--only", nargs="*", default=None, help="clip names to run (default: all)")
     ap.add_argument("--max-side", type=int, default=384, help="longer side of the processed frames")
     ap.add_argument("--strips-only", action="store_true", help="redraw the strips of scenes already in WORK")
+    ap.add_argument("--cached", action="store_true",
+                    help="reuse each scene's cached steps (default: recompute all): a change to a later step is then measured alone")
     ap.add_argument("--second-prompt", action="store_true",
                     help="add the second --object-box of SECOND_PROMPTS on the clips that have one (the others run as without)")
     args = ap.parse_args()
@@ -120,7 +122,7 @@ def main() -> None:
             print(f"{name}: {results[name]}")
             continue
         cmd = [sys.executable, "-m", "cogs.cli", "preprocess", str(src), "--out", str(work / "scene"), "--overwrite",
-               "--max-side", str(args.max_side), "--no-progress", "--force", *options]
+               "--max-side", str(args.max_side), "--no-progress", *([] if args.cached else ["--force"]), *options]
         if args.second_prompt:
             cmd += SECOND_PROMPTS.get(name, [])
         t0 = time.perf_counter()

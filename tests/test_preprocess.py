@@ -1028,6 +1028,11 @@ def test_without_a_fitted_body_or_with_given_masks_the_masks_only_become_disjoin
     # Masks from the user or SAM2 are kept: no fingers taken out, no person outline moved.
     human, obj2, _ = refine_masks(img[None], person[None], obj[None], parts[None], np.array([True]), fingers=False, person_edges=False)
     assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all()
+    # A body fit far off its keypoints in a frame is no evidence there.
+    human, obj2, stats = refine_masks(img[None], person[None], obj[None], parts[None], np.array([True]), fit_error=np.array([0.3]))
+    assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all() and stats["frames_body_unfit"] == 1
+    human, obj2, stats = refine_masks(img[None], person[None], obj[None], parts[None], np.array([True]), fit_error=np.array([0.02]))
+    assert (human[0] != (person & ~obj)).any() and stats["frames_body_unfit"] == 0
 
 
 def test_an_object_held_in_front_of_the_body_grows_by_the_pixels_that_move_with_it():
@@ -1040,7 +1045,8 @@ def test_an_object_held_in_front_of_the_body_grows_by_the_pixels_that_move_with_
     shirt_tex = cv2.GaussianBlur(rng.integers(0, 255, (H + 40, W + 40, 3)).astype(np.uint8), (5, 5), 0)
     box_tex = cv2.GaussianBlur(rng.integers(0, 255, (44, 44, 3)).astype(np.uint8), (5, 5), 0)
     images, boxes = [], []
-    for t in range(3):
+    T = 5
+    for t in range(T):
         img = shirt_tex[3 * t:3 * t + H, 10:10 + W].copy()  # the shirt moves up 3 px a frame
         x0 = 60 + 5 * t  # the box moves right 5 px a frame, in front of the shirt
         img[60:104, x0:x0 + 44] = box_tex
@@ -1049,20 +1055,65 @@ def test_an_object_held_in_front_of_the_body_grows_by_the_pixels_that_move_with_
         images.append(img)
         boxes.append(box)
     images, boxes = np.stack(images), np.stack(boxes)
-    person = np.zeros((3, H, W), bool)
+    person = np.zeros((T, H, W), bool)
     person[:, 10:150, 20:180] = True  # MediaPipe's mask takes the box in
     obj = boxes.copy()
-    obj[1:, :, :] &= np.arange(W)[None, None, :] < (60 + 5 * np.arange(3))[1:, None, None] + 22  # a face missed: half the box
-    parts = np.zeros((3, H, W), np.uint8)
-    grown, added = motion_grow(images, person, obj, parts, np.ones(3, bool))
+    # Seen whole in the first three frames, then a face is missed: half the box (a convex
+    # mask, but half the size the tracker saw around it).
+    obj[3:, :, :] &= np.arange(W)[None, None, :] < (60 + 5 * np.arange(T))[3:, None, None] + 22
+    parts = np.zeros((T, H, W), np.uint8)
+    grown, added = motion_grow(images, person, obj, parts, np.ones(T, bool))
     assert added > 0
-    for t in (1, 2):
+    for t in (3, 4):
         missed = boxes[t] & ~obj[t]
         assert (grown[t] & missed).sum() >= 0.6 * missed.sum()  # the missed face moves with the box: it joins
         assert (grown[t] & ~boxes[t]).sum() <= 0.05 * boxes[t].sum()  # the shirt moves otherwise: it stays out
     # Off the person (not held in front of the body) the test does not apply.
-    grown, added = motion_grow(images, np.zeros_like(person), obj, parts, np.ones(3, bool))
+    grown, added = motion_grow(images, np.zeros_like(person), obj, parts, np.ones(T, bool))
     assert added == 0 and (grown == obj).all()
+
+
+def test_a_whole_ball_in_front_of_a_moving_leg_does_not_take_the_leg_in():
+    """A juggled ball: the tracker's mask is the whole ball in every frame (convex, steady
+    size) while the kicking leg behind it moves with it; the rest of the person moves
+    otherwise. The leg stays out of the object's mask."""
+    import cv2
+
+    from cogs.preprocess.bodymasks import motion_grow
+
+    rng = np.random.default_rng(2)
+    H, W, T = 160, 200, 7
+    body_tex = cv2.GaussianBlur(rng.integers(0, 255, (H + 40, W + 40, 3)).astype(np.uint8), (5, 5), 0)
+    leg_tex = cv2.GaussianBlur(rng.integers(0, 255, (90, 30, 3)).astype(np.uint8), (5, 5), 0)
+    ball_tex = cv2.GaussianBlur(rng.integers(0, 255, (40, 40, 3)).astype(np.uint8), (5, 5), 0)
+    disk = np.hypot(*np.mgrid[-19.5:20, -19.5:20]) <= 19
+    images, balls, legs = [], [], []
+    for t in range(T):
+        img = body_tex[20 - 3 * t:20 - 3 * t + H, 10:10 + W].copy()  # the body moves down 3 px a frame
+        y0 = 60 - 4 * t  # the leg and the ball in front of it rise 4 px a frame together
+        img[y0:y0 + 90, 90:120] = leg_tex
+        ball = np.zeros((H, W), bool)
+        ball[y0:y0 + 40, 85:125] = disk
+        img[ball] = ball_tex[disk]
+        leg = np.zeros((H, W), bool)
+        leg[y0:y0 + 90, 90:120] = True
+        images.append(img)
+        balls.append(ball)
+        legs.append(leg & ~ball)
+    images, balls, legs = np.stack(images), np.stack(balls), np.stack(legs)
+    person = np.zeros((T, H, W), bool)
+    person[:, 5:155, 40:170] = True
+    parts = np.zeros((T, H, W), np.uint8)
+    grown, added = motion_grow(images, person, balls, parts, np.ones(T, bool))
+    assert added == 0 and (grown == balls).all()
+    # The same scene with the tracker missing the ball's lower half from frame 4 on: that
+    # half grows back (the motion test itself still works here).
+    half = balls & (np.arange(H)[None, :, None] < (60 - 4 * np.arange(T))[:, None, None] + 20)
+    half[:4] = balls[:4]
+    grown, added = motion_grow(images, person, half, parts, np.ones(T, bool))
+    for t in (4, 5, 6):
+        missed = balls[t] & ~half[t]
+        assert (grown[t] & missed).sum() >= 0.6 * missed.sum()
 
 
 def test_a_held_object_that_suddenly_shrinks_is_filled_back_in_from_the_previous_frame():
@@ -1536,3 +1587,25 @@ def test_the_world_scale_comes_from_the_ground_and_its_absence_is_warned(caplog)
         al = Wd.align_sfm(w2c, reg, np.zeros((0, 3)), K, kp2d, up_cam, feet_cam, root_cam)
     assert al.scale == 1.0 and al.notes["scale"].startswith("unknown")
     assert [r for r in caplog.records if "scale is unknown" in r.getMessage() and "floor" in r.getMessage()]
+
+
+def test_without_a_floor_a_hand_held_camera_gets_its_scale_from_the_persons_smooth_path():
+    """The floor out of view and no point near the feet: a hand-held camera's jitter, in SfM
+    units, would shake a person standing still by the wrong factor; the scale at which the
+    person's world path is smoothest is the true one (the guitar clip's case)."""
+    from cogs.preprocess import world as Wd
+
+    k, T = 30.0, 40  # SfM units per metre
+    rng = np.random.default_rng(3)
+    w2c, reg, _, K, kp2d, up_cam, feet_cam, _ = _walked_past_cameras(k=k, T=T)
+    centres_m = np.cumsum(rng.normal(0, 0.01, (T, 3)), axis=0)  # a hand-held path, metres
+    w2c[:, :3, 3] = -k * centres_m  # identity rotations: t = -R c, in SfM units
+    person_m = np.array([0.0, 0.5, 3.0]) + np.c_[np.linspace(0, 0.3, T), np.zeros(T), np.zeros(T)]  # a slow step aside
+    root_cam = person_m - centres_m + rng.normal(0, 0.002, (T, 3))  # what the body's size gives, with noise
+    al = Wd.align_sfm(w2c, reg, np.zeros((0, 3)), K, kp2d, up_cam, feet_cam, root_cam)
+    assert al.scale == pytest.approx(1 / k, rel=0.1) and al.notes["scale"].startswith("from the person's motion")
+    s, explained = Wd.scale_from_body_motion(w2c, reg, root_cam)
+    assert explained > 0.9
+    # A camera that moves smoothly gives the person's path nothing to tell: no scale.
+    w2c[:, :3, 3] = -k * np.c_[np.linspace(0, 0.5, T), np.zeros(T), np.zeros(T)]
+    assert Wd.scale_from_body_motion(w2c, reg, root_cam)[0] is None

@@ -37,8 +37,8 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 1
 PERSONS_VERSION = 2  # of the persons step (2: a body the detector cannot find is followed without the face)
 TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
-MASKS_VERSION = 3  # of the body-based mask refinement (`bodymasks.py`): bumping it redoes the masks step
-BODY_VERSION = 3  # of the body fit (`bodyfit.py`; 3: an average adult of a given stature): bumping it redoes the body step
+MASKS_VERSION = 5  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off): bumping it redoes the masks step
+BODY_VERSION = 4  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it): bumping it redoes the body step
 OBJECT_POSE_VERSION = 6  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
@@ -668,12 +668,14 @@ class _Runner:
         human, obj, stats = refine_masks(images, pe["masks"].astype(bool), obj_masks, parts, pe["detected"].astype(bool),
                                          on_frame=lambda k: update(T + k),
                                          fingers=cfg.object_masks is None and cfg.sam2_checkpoint is None,
-                                         person_edges=cfg.sam2_checkpoint is None)
+                                         person_edges=cfg.sam2_checkpoint is None, fit_error=bo["reprojection_error"])
         arrays = {"human": human}
         if obj is not None:
             arrays["object"] = obj
         summary = (f"forearm +{stats['forearm_px']} px in {stats['frames_with_forearm']} frames, fingers -{stats['finger_px']} px "
-                   f"in {stats['frames_with_fingers']}, bleed -{stats['bleed_px']} px")
+                   f"in {stats['frames_with_fingers']}, bleed -{stats['bleed_px']} px"
+                   + (f"; the body fit is off its keypoints in {stats['frames_body_unfit']} frames, not used there"
+                      if stats["frames_body_unfit"] else ""))
         return arrays, {"summary": summary, "stats": stats}
 
     def _object_pose(self, label, ui, images, ob, human_masks, bo, K):
