@@ -303,6 +303,9 @@ ADDED: dict[tuple[str, str], str] = {
                                                "initial pose; off, as before (models saved before it also count every "
                                                "frame as trained) (2026-11-27)",
     ("ObjectConfig", "held_out_max_gap"): "the reach of a held-out object pose's interpolation (2026-11-27)",
+    ("ObjectConfig", "smooth_about_initial"): "the object's acceleration measured about its initial trajectory; a model "
+                                              "saved before it has a zero reference, which is the old term (2026-11-28)",
+    ("TrainConfig", "fused_adam"): "Adam's fused update on CUDA; the same arithmetic, and the host's is unchanged (2026-11-28)",
 }
 """(dataclass, key) of settings added after runs were written: an older config.yaml that
 lacks one takes its default, which reproduces what that run did (or, for a new stage,

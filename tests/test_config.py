@@ -126,3 +126,14 @@ def test_older_runs_settings_that_were_retired_are_ignored(tmp_path):
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(data))
     assert load_config(tmp_path / "config.yaml") == quick_config()
 
+
+def test_a_config_yaml_written_by_an_earlier_cogs_still_loads():
+    """`tests/data/config_written_before_2026-11-28.yaml` is a quick-preset run's config.yaml
+    as cogs wrote it before `smooth_about_initial` and `fused_adam` existed. A setting added
+    since must be in ADDED (taking the default that reproduces the old run), or every run
+    trained before it stops loading for eval, render, export and view."""
+    from pathlib import Path
+
+    cfg = load_config(Path(__file__).parent / "data" / "config_written_before_2026-11-28.yaml")
+    assert cfg.preset == "quick" and cfg.branches.object.smooth_about_initial and cfg.fused_adam
+    assert cfg == quick_config()  # that run used the preset as it was, and nothing it had has changed since
