@@ -203,3 +203,31 @@ def test_a_box_on_no_body_follows_nobody(headless):
     images, _ = headless
     H, W = images.shape[1:3]
     assert not follow_body(images[:4], 0, np.array([W - 60, H - 50, W, H], float)).detected.any()
+
+
+def test_a_skeleton_that_explains_the_person_mask_scores_above_a_scrambled_one(default_scene_dir):
+    """`skeleton_fit` decides where MediaPipe's video-mode landmarks give way to a fresh
+    detection's: real landmarks of a synthetic frame explain its person mask; the same
+    landmarks shrunk into the middle of the body (what video mode's tracking kept on the
+    bottle clip: the face at the hands, the hips at the belt) or moved off it do not."""
+    pytest.importorskip("mediapipe", reason="mediapipe is in the optional `preprocess` extra")
+    from PIL import Image
+
+    from cogs.preprocess.persons import _run_pose, _static_pose, import_mediapipe, skeleton_fit
+
+    image = np.asarray(Image.open(default_scene_dir / "images" / "000030.png").convert("RGB"))
+    human = np.asarray(Image.open(default_scene_dir / "masks" / "human" / "000030.png")) > 127
+    pose = _static_pose(import_mediapipe())
+    try:
+        kp = _run_pose(pose, image, (0, 0, image.shape[1], image.shape[0]), np.ones(human.shape, bool))[0]
+    finally:
+        pose.close()
+    good = skeleton_fit(kp, human)
+    centre = kp[[11, 12, 23, 24], :2].mean(0)
+    shrunk = kp.copy()
+    shrunk[:, :2] = centre + 0.5 * (kp[:, :2] - centre)
+    moved = kp.copy()
+    moved[:, 0] += 0.6 * (np.ptp(np.nonzero(human.any(0))[0]) + 1)
+    assert good > 0.3
+    assert skeleton_fit(shrunk, human) < good - 0.1 and skeleton_fit(moved, human) < good - 0.1
+    assert skeleton_fit(kp, np.zeros_like(human)) == 0.0

@@ -35,7 +35,7 @@ from cogs.errors import UserError
 log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
-PERSONS_VERSION = 2  # of the persons step (2: a body the detector cannot find is followed without the face)
+PERSONS_VERSION = 4  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body)
 TRACKER_VERSION = 4  # of the classical object tracker: bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 5  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off): bumping it redoes the masks step
 BODY_VERSION = 4  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it): bumping it redoes the body step
