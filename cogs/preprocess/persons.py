@@ -133,13 +133,12 @@ def clean_person_mask(mask: np.ndarray, kp2d: np.ndarray | None) -> np.ndarray:
 
 
 RELOCK_MARGIN = 0.1
-"""How much better (IoU with the frame's person mask, `skeleton_fit`) the landmarks of
-MediaPipe's static mode must explain the person than video mode's for a frame to take
-them. On the bottle clip (the face pixelated in the source) video mode's tracking locked
-onto a wrong region after the person bent over, and its landmarks stayed scrambled (face
-points at the hands) for 83 of 100 frames: fit 0.15 against static mode's 0.52. The
-juggle, basketball, loading clips and the synthetic benchmark have no such frame, and
-the guitar clip 8."""
+"""How much better (`skeleton_fit`) the landmarks of MediaPipe's static mode must explain
+the frame's person mask than video mode's for the frame to take them. On the bottle clip
+(the face pixelated in the source) video mode's tracking stayed on a mid-body region after
+the person bent over, and its landmarks stayed scrambled (face points at the hands): 84 of
+100 frames are replaced. The synthetic benchmark's default clip has 2 such frames of 40;
+the guitar, juggle and basketball clips none."""
 
 
 def skeleton_fit(kp: np.ndarray, mask: np.ndarray) -> float:
