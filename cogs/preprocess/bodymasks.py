@@ -59,8 +59,9 @@ from cogs.preprocess.segment import solidity
 BINS = 16  # per channel, for the colour models
 MAX_FIT_ERROR = 0.1
 """The body fit's 2D error (fraction of the person's height) above which a frame's fitted
-body is not used: good fits are 1-6 % on the development clips; the guitar clip's, before
-its world had a scale, were 26 % (median) and took a third of the person mask away."""
+body is not used: good fits are 1-6 % on the development clips and about 3 % on the
+synthetic video benchmark (never reached there); the guitar clip's, before its world had a
+scale, were 26 % (median) and took a third of the person mask away."""
 ARM_WORDS = ("lowerarm", "forearm", "elbow")
 HAND_WORDS = ("wrist", "hand", "finger", "metacarpal", "thumb", "index", "middle", "ring", "pinky")
 PERSON_P = 0.6  # colour posterior needed to add a forearm pixel / to call an object pixel a finger

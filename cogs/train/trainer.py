@@ -59,20 +59,22 @@ def run_is_finished(run: Path) -> bool:
     return read_json(summary).get("stages") == stage_names(load_config(config))
 
 
+def _fuses(device: torch.device, fused: bool) -> bool:
+    return bool(fused and torch.device(device).type == "cuda")
+
+
 def make_adam(groups: list[dict], device: torch.device, fused: bool = True) -> torch.optim.Adam:
     """The branches' Adam. On CUDA (with `fused`) the update is one fused kernel per
     parameter group instead of torch's multi-tensor passes: a GPU step is bound by the host
     issuing small kernels (docs/experiments/2026-11-27-gpu-step-profile.md). The host keeps
     torch's default update, so CPU runs stay bit-identical to earlier ones."""
-    if fused and torch.device(device).type == "cuda":
-        return torch.optim.Adam(groups, eps=1e-15, fused=True)
-    return torch.optim.Adam(groups, eps=1e-15)
+    return torch.optim.Adam(groups, eps=1e-15, fused=True if _fuses(device, fused) else None)
 
 
 def adopt_fusion(opt: torch.optim.Optimizer, device: torch.device, fused: bool = True) -> None:
     """After `load_state_dict`: the saved groups carry the writer's `fused` flag (a run
     resumed on another device), so set the one this device takes."""
-    on = bool(fused and torch.device(device).type == "cuda")
+    on = _fuses(device, fused)
     for g in opt.param_groups:
         g["fused"] = on or None
         if on:
