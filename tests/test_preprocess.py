@@ -503,6 +503,60 @@ def test_a_carried_object_that_turns_a_new_face_is_found_again_at_its_hand(perso
         assert _iou(masks[t], gt[t]) > 0.7, (t, cues)
 
 
+def test_an_object_prompted_in_a_hand_is_followed_with_that_hand_when_it_turns_at_once():
+    # The fingers close over the prompt, and from the next frame on it shows a face in the
+    # background's colours: nothing but the hand says where it went (a transparent bottle
+    # shows whatever is behind it). Without the prompt's hand it is lost for good.
+    from cogs.preprocess.tracking import holding_hand
+
+    images, gt, fingers, person, kp = _held_object_clip(T=6, new_face_from=1, speed=14)
+    assert holding_hand(kp, 0, gt[0]) == 1  # the right hand's fingers are over it
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp)
+    for t in range(1, 6):
+        assert _iou(masks[t], gt[t]) > 0.7 and conf[t] > 0, t
+
+
+def test_a_hand_beside_an_object_does_not_hold_it():
+    from cogs.preprocess.tracking import holding_hand
+
+    H, W = 120, 160
+    kp = _hand_keypoints(1, [(40, 60)], palm=10)
+    near = _square(H, W, 85, 60, 12)  # starts a few pixels past the finger tips
+    assert holding_hand(kp, 0, near) is None
+    assert holding_hand(kp, 0, _square(H, W, 62, 60, 12)) == 1  # under the fingers
+    kp[0, 16, 2] = 0.1  # a hand MediaPipe does not see holds nothing
+    assert holding_hand(kp, 0, _square(H, W, 62, 60, 12)) is None
+    assert holding_hand(None, 0, near) is None
+
+
+def test_a_mask_that_cannot_be_told_from_its_surroundings_is_not_trusted():
+    # The disc moves onto a wide patch of its own colour (a transparent bottle over the
+    # floor it stood on): whatever the tracker keeps there, it is no evidence, and its
+    # confidence drops below what supervises the object branch. Before, nothing changes.
+    from cogs.branches.object import ObjectConfig
+    from cogs.preprocess.tracking import UNCLEAR_CONFIDENCE, _Tracker
+
+    T, H, W = 10, 120, 200
+    bg = _texture(H, W, seed=1) // 2 + 60
+    bg[:, 130:] = (235, 120, 30)
+    yy, xx = np.mgrid[:H, :W]
+    images, gt = [], []
+    for t in range(T):
+        im = bg.copy()
+        om = (xx + 0.5 - (30 + 12 * t)) ** 2 + (yy + 0.5 - 60) ** 2 < 11**2
+        im[om] = (235, 120, 30)
+        images.append(im)
+        gt.append(om)
+    images, gt = np.stack(images), np.stack(gt)
+    masks, conf = O.propagate_masks(images, gt[0], 0)
+    assert (conf[1:6] >= 0.5).all() and all(_iou(masks[t], gt[t]) > 0.8 for t in range(1, 6)), conf
+    assert (conf[9] <= UNCLEAR_CONFIDENCE) and UNCLEAR_CONFIDENCE < ObjectConfig().min_confidence, conf
+    tracker = _Tracker(images, None, None, None, None, 0.5, 0.1, 0.5, 4, prompts={0: gt[0]})
+    assert not tracker.unclear(3, gt[3])  # the whole disc on the texture stands out
+    assert tracker.unclear(3, gt[3] & (np.abs(xx - 66) < 5) & (np.abs(yy - 60) < 5))  # a piece of its middle: the rest is all round it
+    assert tracker.unclear(9, gt[9]) and not tracker.unclear(9, np.zeros_like(gt[9]))
+
+
 def test_the_moving_piece_at_a_hand_gets_back_the_bites_of_look_alike_scene_if_convex():
     from cogs.preprocess.tracking import moving_at_hand
 
