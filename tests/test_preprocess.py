@@ -557,6 +557,29 @@ def test_a_mask_that_cannot_be_told_from_its_surroundings_is_not_trusted():
     assert tracker.unclear(9, gt[9]) and not tracker.unclear(9, np.zeros_like(gt[9]))
 
 
+def test_a_piece_grabcut_cuts_out_of_a_refound_object_yields_to_the_whole_window(monkeypatch):
+    # On the basketball clip GrabCut re-found a dribbled ball as one panel between its
+    # seams, the rest of the ball all round it. That GrabCut failure is forced here (only
+    # the middle of its find is kept); the piece is unclear (its surroundings look like
+    # it), so the colour search keeps the probable pixels of the located window instead.
+    from cogs.preprocess import tracking
+
+    images, gt, person = _object_clip(T=8)
+    images[3][gt[3]] = images[2][~gt[2]].mean(0).astype(np.uint8)  # hidden on frame 3: frame 4 is found by colour
+    real = tracking.grabcut_at
+
+    def piece(rgb, prob, centre, size, hp, static=None):
+        seg = real(rgb, prob, centre, size, hp, static=static)
+        yy, xx = np.mgrid[: seg.shape[0], : seg.shape[1]]
+        return seg & ((xx + 0.5 - centre[0]) ** 2 + (yy + 0.5 - centre[1]) ** 2 < 6**2)
+
+    monkeypatch.setattr(tracking, "grabcut_at", piece)
+    cues = []
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=(person * 255).astype(np.uint8), cues=cues)
+    assert cues[4] == "colour" and _iou(masks[4], gt[4]) > 0.8, (cues, _iou(masks[4], gt[4]))
+    assert conf[4] > 0.5
+
+
 def test_the_moving_piece_at_a_hand_gets_back_the_bites_of_look_alike_scene_if_convex():
     from cogs.preprocess.tracking import moving_at_hand
 

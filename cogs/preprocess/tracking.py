@@ -17,7 +17,9 @@ of three cues that holds (``_Tracker._step``):
    (``hand_regions``) are taken out of the visible mask;
 2. **colour**: the object-sized window with the best mean object probability over the
    whole frame (``locate``), weighted towards the motion prediction and the hands, then
-   GrabCut seeded there (a fast or reappearing object: a bounced ball);
+   GrabCut seeded there (a fast or reappearing object: a bounced ball); where GrabCut
+   keeps a piece the rest of the object surrounds (``unclear``: one panel of a ball
+   between its seams), the window's probable pixels instead;
 3. **hand**: for a few frames after an object seen carried by a hand was lost, the
    moving piece off the person at either hand (``moving_at_hand``): a handled object
    that turns shows faces no colour model has seen. Without a static scene to compare
@@ -993,15 +995,20 @@ class _Tracker:
             cf = min(1.0, score / self.ref_score)
             seg = grabcut_at(rgb, prob_search, centre, st.size, hp, static=static)
             seg = fill_holes(largest_component_near(seg, tuple(centre))) & ~hands if seg.any() else seg
-            if 0.25 * self.ref_area <= seg.sum() <= 3.0 * self.ref_area:
+            sized = 0.25 * self.ref_area <= seg.sum() <= 3.0 * self.ref_area
+            if sized and not self.unclear(t, seg):
                 return _Found(seg, seg, cf, "colour", score)
-            # GrabCut leaked or collapsed: keep the probable pixels in the located window.
+            # GrabCut leaked, collapsed, or cut a piece out of a look-alike whole (a quarter
+            # of a ball, the rest around it): the probable pixels in the located window.
             yy, xx = np.mgrid[:H, :W]
             ell = ((xx + 0.5 - centre[0]) / (0.5 * st.size[0])) ** 2 + ((yy + 0.5 - centre[1]) / (0.5 * st.size[1])) ** 2
             fallback = (ell <= 1.0) & (prob_search > 0.5)
             if fallback.sum() >= 0.25 * self.ref_area:
                 fallback = fill_holes(largest_component_near(fallback, tuple(centre))) & ~hands
-                return _Found(fallback, fallback, cf, "colour", score)
+                if not (sized and self.unclear(t, fallback)):
+                    return _Found(fallback, fallback, cf, "colour", score)
+            if sized:  # neither is clear: GrabCut's, for what it is worth (its confidence will say)
+                return _Found(seg, seg, cf, "colour", score)
 
         # 3. The hand: an object carried for a while is still in that hand, whatever face
         #    it now shows (for a few frames; past them it may have been put down): what
