@@ -70,9 +70,10 @@ class ObjectConfig:
     object's mask, crop and colour terms skip them, and the visual hull and the object's
     initial colours ignore them; their trajectory is the keyframes' interpolation, held to
     the initial poses by the pose prior. The classical tracker gives 0 where it lost the
-    object and at least 0.3 wherever a cue found it (0.3 for the hand cue alone, the floor
-    of a fitted shape); SAM2's and the user's masks give 0 on an empty mask, 1 otherwise:
-    0.2 leaves out exactly the frames marked lost. Chosen on that scale, not tuned on scenes:
+    object, 0.1 where its mask cannot be told from its surroundings (``_Tracker.unclear``)
+    and at least 0.3 wherever a cue found it (0.3 for the hand cue alone, the floor of a
+    fitted shape); SAM2's and the user's masks give 0 on an empty mask, 1 otherwise: 0.2
+    leaves out exactly the frames marked lost or unclear. Chosen on that scale, not tuned on scenes:
     the demo scene and other synthetic scenes record no confidence and are unaffected (bit
     for bit); on the basketball clip it leaves out the two frames where the ball is hidden
     (docs/experiments/2026-11-25-initial-object-pose.md, end to end)."""
