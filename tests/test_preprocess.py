@@ -557,6 +557,46 @@ def test_a_mask_that_cannot_be_told_from_its_surroundings_is_not_trusted():
     assert tracker.unclear(9, gt[9]) and not tracker.unclear(9, np.zeros_like(gt[9]))
 
 
+def test_a_mask_along_a_forearm_frame_after_frame_is_the_arm_and_not_the_object():
+    from cogs.preprocess.tracking import forearm_regions, on_forearm
+
+    T, H, W = 6, 120, 160
+    kp = _hand_keypoints(T, [(50, 60)] * T, palm=10)  # the right forearm from (20, 60) to the wrist
+    fa = forearm_regions(kp[0], (H, W))
+    assert fa[60, 22] and fa[60, 48] and fa[63, 35] and not fa[70, 35] and not fa[60, 70]
+    yy, xx = np.mgrid[:H, :W]
+    arm = (np.abs(xx - 35) <= 12) & (np.abs(yy - 60) <= 3)
+    held = (xx - 70) ** 2 + (yy - 60) ** 2 <= 9**2  # beyond the finger tips
+    masks = np.stack([arm, arm, arm, held, arm, held])
+    # On the arm for three frames running: the arm. Once, between two frames elsewhere: an
+    # object passing in front of it. Beyond the hand: the object.
+    assert on_forearm(masks, kp).tolist() == [True, True, True, False, False, False]
+    kp[:, 14, 2] = 0.1  # an elbow MediaPipe does not see: no forearm to be on
+    assert not on_forearm(masks, kp).any()
+
+
+def test_a_track_along_the_arm_does_not_supervise_the_object():
+    # The prompt was drawn on the arm (as a track that slid onto it would be): every cue
+    # follows it with full confidence, and the forearm caps that below what supervises the
+    # object branch. The same frames with the arm elsewhere keep their confidence.
+    from cogs.branches.object import ObjectConfig
+    from cogs.preprocess.tracking import UNCLEAR_CONFIDENCE
+
+    T, H, W = 5, 120, 160
+    bg = (_texture(H, W, seed=2) // 3 + 40).astype(np.uint8)
+    yy, xx = np.mgrid[:H, :W]
+    arm = (np.abs(xx - 35) <= 12) & (np.abs(yy - 60) <= 4)
+    bg[arm] = (230, 140, 60)
+    images = np.stack([bg] * T)
+    kp = _hand_keypoints(T, [(50, 60)] * T, palm=10)
+    masks, conf = O.propagate_masks(images, arm, 0, kp2d=kp)
+    assert all(_iou(masks[t], arm) > 0.9 for t in range(T))
+    assert conf[0] == 1.0 and (conf[1:] <= UNCLEAR_CONFIDENCE).all() and UNCLEAR_CONFIDENCE < ObjectConfig().min_confidence, conf
+    elsewhere = _hand_keypoints(T, [(130, 20)] * T, palm=10)
+    _, conf = O.propagate_masks(images, arm, 0, kp2d=elsewhere)
+    assert (conf[1:] >= 0.5).all(), conf
+
+
 def test_a_piece_grabcut_cuts_out_of_a_refound_object_yields_to_the_whole_window(monkeypatch):
     # On the basketball clip GrabCut re-found a dribbled ball as one panel between its
     # seams, the rest of the ball all round it. That GrabCut failure is forced here (only

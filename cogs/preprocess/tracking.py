@@ -36,7 +36,8 @@ frames that ends where the object was found again is tracked back into from ther
 convex object (a prompt mask of solidity >= 0.9: a ball, a box, a bottle) is kept to
 the pieces of its mask that fit its outline (``drop_stray_pieces``). A frame's confidence
 is the cue's, capped by how much the mask looks like the prompt (``resemblance``), and
-at 0.1 where its surroundings look like it too (``unclear``: no evidence either way).
+at 0.1 where its surroundings look like it too (``unclear``: no evidence either way) or
+where it lies along a forearm (``on_forearm``: the arm holding the object).
 
 Hands matter throughout: a handled object is always next to one, the fingers cover it, and
 a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
@@ -89,6 +90,15 @@ _SCENE_OFFSETS = (1, 2, 4, 8, 12)
 # clip's frames left on the floor it is 0.64-0.90.
 UNCLEAR_SHARE = 0.5
 UNCLEAR_CONFIDENCE = 0.1
+# A mask with at least this share of its pixels on a forearm (``forearm_regions``, hands
+# left out), in its frame and a neighbouring one, is the arm that holds the object rather
+# than the object, which is held beyond the wrist: its confidence is capped at
+# ``UNCLEAR_CONFIDENCE`` too (``on_forearm``). Measured on the six development clips and the
+# synthetic video benchmark at three settings
+# (docs/experiments/2026-11-29-masks-on-a-forearm.md): where the mask is the object it is
+# at most 0.37 (a juggled ball passing in front of the arm; 0 on the synthetic clips); on
+# the bottle clip's frames that followed a forearm it is 0.53-1.0.
+ON_FOREARM_SHARE = 0.5
 
 # -- motion cues ----------------------------------------------------------------------
 
@@ -326,6 +336,42 @@ def hand_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float =
         hull = cv2.convexHull(np.array([w, p, i, th, 2 * p - w, 2 * i - w], np.float32).reshape(-1, 1, 2))
         out |= _filled_and_grown(hull, 0.25 * palm, (H, W))
     return out
+
+
+def forearm_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float = 0.5, radius: float = 0.15) -> np.ndarray:
+    """Pixels the visible forearms may cover -> [H, W] bool, from one frame's MediaPipe
+    keypoints [33, 3]: the segment from each elbow to its wrist, grown by ``radius`` x its
+    length (a forearm is about a third as wide as it is long; the hand beyond the wrist is
+    ``hand_regions``')."""
+    import cv2
+
+    H, W = shape
+    out = np.zeros((H, W), np.uint8)
+    for elbow, wrist, *_ in _HAND_LANDMARKS:
+        k = kp[[elbow, wrist]]
+        if not np.isfinite(k).all() or k[:, 2].min() < min_visibility:
+            continue
+        r = max(1, int(round(radius * float(np.linalg.norm(k[1, :2] - k[0, :2])))))
+        a, b = (tuple(int(v) for v in np.round(p)) for p in k[:, :2])
+        cv2.line(out, a, b, 1, 2 * r + 1)
+    return out > 0
+
+
+def on_forearm(masks: np.ndarray, kp2d: np.ndarray, share: float = ON_FOREARM_SHARE) -> np.ndarray:
+    """Frames whose mask lies on a forearm -> [T] bool: ``share`` or more of its pixels
+    inside ``forearm_regions`` (the hands left out), in that frame and in the frame before
+    or after it. A handled object is held beyond the wrist; a mask along the forearm, frame
+    after frame, is a track that slid from the object onto the arm holding it (a
+    transparent bottle in a fist, whose colours are the arm's and the clothes'). An object
+    passing in front of the arm (a juggled ball) covers it for a frame, and never mostly."""
+    T, H, W = masks.shape
+    on = np.zeros(T, bool)
+    for t in range(T):
+        n = int(masks[t].sum())
+        if n:
+            arm = forearm_regions(kp2d[t], (H, W)) & ~hand_regions(kp2d[t], (H, W))
+            on[t] = (masks[t] & arm).sum() >= share * n
+    return on & (np.r_[False, on[:-1]] | np.r_[on[1:], False])
 
 
 def foot_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float = 0.5) -> np.ndarray:
@@ -1188,6 +1234,11 @@ def propagate_masks(
         fill_gaps(masks, conf, found, k, direction, T if direction > 0 else -1)
     for t in list(range(frames[-1] + 1, T)) + list(range(frames[0])):
         origin[t] = frames[-1] if t > frames[-1] else frames[0]
+    if kp2d is not None:
+        # The arm that holds the object is not the object, whatever cue found it there.
+        for t in np.flatnonzero(on_forearm(masks, kp2d)):
+            if found[t] != "prompt":
+                conf[t] = min(conf[t], UNCLEAR_CONFIDENCE)
     log.debug("object cues per frame: %s", found)
     if cues is not None:
         cues[:] = found
