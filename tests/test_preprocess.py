@@ -246,7 +246,7 @@ def test_object_masks_follow_a_moving_object_from_one_box():
     k = 3
     ys, xs = np.nonzero(gt[k])
     box = np.array([xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4], float)
-    prompt = O.grabcut_box(images[k], box)
+    prompt, _ = O.grabcut_box(images[k], box)
     assert _iou(prompt, gt[k]) > 0.85
     masks, conf = O.propagate_masks(images, prompt, k, human_probs=(person * 255).astype(np.uint8))
     ious = [_iou(masks[t], gt[t]) for t in range(len(images))]
@@ -258,7 +258,7 @@ def test_object_is_reported_lost_while_hidden():
     images, gt, person = _object_clip()
     images[5][gt[5]] = images[4][~gt[4]].mean(0).astype(np.uint8)  # frame 5: disc painted over
     ys, xs = np.nonzero(gt[0])
-    prompt = O.grabcut_box(images[0], np.array([xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4], float))
+    prompt, _ = O.grabcut_box(images[0], np.array([xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4], float))
     masks, conf = O.propagate_masks(images, prompt, 0)
     assert not masks[5].any() and conf[5] == 0
     assert _iou(masks[6], gt[6]) > 0.8  # and found again after
@@ -380,6 +380,25 @@ def test_a_prompt_whose_surroundings_share_its_colours_is_warned_about():
     prompt = parse_prompts((0, 10, 20, 30, 40), None, None)[0][0]
     assert lookalike_prompt_warning(prompt, 0.05) is None
     text = lookalike_prompt_warning(prompt, share[0])
+    assert "--object-box 0 10 20 30 40" in text and "frame 0" in text and "--sam2-checkpoint" in text
+
+
+def test_a_box_where_nothing_stands_out_is_tracked_as_its_ellipse_and_warned_about():
+    from cogs.preprocess.prompts import guessed_prompt_warning, parse_prompts
+
+    images, gt, _ = _object_clip()
+    ys, xs = np.nonzero(gt[0])
+    box = np.array([xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4], float)
+    mask, guessed = O.grabcut_box(images[0], box)
+    assert not guessed and _iou(mask, gt[0]) > 0.85
+    # The disc painted over with the background's texture: nothing in the box stands out.
+    bare = images[0].copy()
+    bare[gt[0]] = np.roll(images[0], 40, axis=1)[gt[0]]
+    mask, guessed = O.grabcut_box(bare, box)
+    area = (box[2] - box[0]) * (box[3] - box[1])
+    assert guessed and abs(mask.sum() - np.pi / 4 * area) < 0.1 * area
+    prompt = parse_prompts((0, 10, 20, 30, 40), None, None)[0][0]
+    text = guessed_prompt_warning(prompt)
     assert "--object-box 0 10 20 30 40" in text and "frame 0" in text and "--sam2-checkpoint" in text
 
 
@@ -644,9 +663,9 @@ def test_grabcut_gives_the_same_mask_whatever_opencvs_random_state():
     ys, xs = np.nonzero(gt[2])
     box = np.array([xs.min() - 6, ys.min() - 6, xs.max() + 7, ys.max() + 7], float)
     cv2.setRNGSeed(1)
-    a = O.grabcut_box(images[2], box)
+    a, _ = O.grabcut_box(images[2], box)
     cv2.setRNGSeed(12345)
-    b = O.grabcut_box(images[2], box)
+    b, _ = O.grabcut_box(images[2], box)
     assert np.array_equal(a, b)
 
 

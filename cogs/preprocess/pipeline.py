@@ -510,7 +510,7 @@ class _Runner:
             conf = masks.reshape(T, -1).any(1).astype(np.float64)
             update(T)
         else:
-            from cogs.preprocess.prompts import box_mask, lookalike_prompt_warning, small_prompt_warning
+            from cogs.preprocess.prompts import box_mask, guessed_prompt_warning, lookalike_prompt_warning, small_prompt_warning
 
             scaled = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.positives]
             scaled_neg = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.negatives]
@@ -526,7 +526,9 @@ class _Runner:
             else:
                 prompts = {}
                 for p, (k, box) in zip(self.positives, scaled):
-                    prompts[k] = O.grabcut_box(images[k], box)
+                    prompts[k], guessed = O.grabcut_box(images[k], box)
+                    if guessed:
+                        log.warning("%s", guessed_prompt_warning(p))
                     if k in negative:
                         prompts[k] &= ~negative[k]
                     if not prompts[k].any():

@@ -212,6 +212,16 @@ def lookalike_prompt_warning(prompt: BoxPrompt, share: float) -> str | None:
             f"{POSITIVE} on a later frame, or give --sam2-checkpoint")
 
 
+def guessed_prompt_warning(prompt: BoxPrompt) -> str:
+    """The warning for an object prompt in whose box GrabCut found nothing standing out
+    (``segment.grabcut_box``'s ``guessed``): the box's inscribed ellipse is tracked
+    instead, colours of the background included."""
+    return (f"{prompt.option} {prompt.text}: nothing in the box on frame {prompt.frame} stands out from what is around "
+            "it (GrabCut kept under 5 % of the box), so the box's inscribed ellipse is taken for the object, with the "
+            "background's colours inside it; the classical tracker may follow that background: draw the box where the "
+            "object stands against other colours, or give --sam2-checkpoint or --object-masks")
+
+
 def box_mask(box: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """[H, W] bool: the pixels whose centres lie in ``box`` (x0, y0, x1, y1, processed pixels)."""
     H, W = shape

@@ -156,8 +156,10 @@ def _foreground(labels: np.ndarray) -> np.ndarray:
     return (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
 
 
-def grabcut_box(rgb: np.ndarray, box: np.ndarray, iterations: int = 5) -> np.ndarray:
-    """GrabCut initialised with a rectangle -> [H, W] bool (the component at the box centre)."""
+def grabcut_box(rgb: np.ndarray, box: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, bool]:
+    """GrabCut initialised with a rectangle -> ([H, W] bool: the component at the box
+    centre, guessed: True where GrabCut kept under 5 % of the box and the box's inscribed
+    ellipse stands in for the object: nothing in the box stood out from around it)."""
     import cv2
 
     H, W = rgb.shape[:2]
@@ -179,11 +181,12 @@ def grabcut_box(rgb: np.ndarray, box: np.ndarray, iterations: int = 5) -> np.nda
     out = np.zeros((H, W), bool)
     out[cy0:cy1, cx0:cx1] = _foreground(labels)
     out = largest_component_near(out, (0.5 * (x0 + x1), 0.5 * (y0 + y1)))
-    if out.sum() < 0.05 * bw * bh:
+    guessed = bool(out.sum() < 0.05 * bw * bh)
+    if guessed:
         # GrabCut found nothing convincing: the inscribed ellipse of the box is the best guess.
         yy, xx = np.mgrid[:H, :W]
         out = ((xx + 0.5 - 0.5 * (x0 + x1)) / (0.5 * bw)) ** 2 + ((yy + 0.5 - 0.5 * (y0 + y1)) / (0.5 * bh)) ** 2 <= 1
-    return fill_holes(out)
+    return fill_holes(out), guessed
 
 
 def grabcut_at(rgb: np.ndarray, prob: np.ndarray, centre, size, human_prob: np.ndarray | None, iterations: int = 3,

@@ -95,7 +95,7 @@ UNCLEAR_CONFIDENCE = 0.1
 # than the object, which is held beyond the wrist: its confidence is capped at
 # ``UNCLEAR_CONFIDENCE`` too (``on_forearm``). Measured on the six development clips and the
 # synthetic video benchmark at three settings
-# (docs/experiments/2026-11-29-masks-on-a-forearm.md): where the mask is the object it is
+# (docs/experiments/2026-11-28-masks-on-a-forearm.md): where the mask is the object it is
 # at most 0.37 (a juggled ball passing in front of the arm; 0 on the synthetic clips); on
 # the bottle clip's frames that followed a forearm it is 0.53-1.0.
 ON_FOREARM_SHARE = 0.5
