@@ -594,6 +594,21 @@ def test_a_mask_along_a_forearm_frame_after_frame_is_the_arm_and_not_the_object(
     assert not on_forearm(masks, kp).any()
 
 
+def test_a_track_that_slid_onto_the_arm_stays_on_it_until_something_finds_the_object_anew():
+    from cogs.preprocess.tracking import carried_on
+
+    H, W = 120, 160
+    yy, xx = np.mgrid[:H, :W]
+    arm = (np.abs(xx - 35) <= 12) & (np.abs(yy - 60) <= 3)
+    wrist = (np.abs(xx - 40) <= 11) & (np.abs(yy - 60) <= 4)  # moved on towards the hand
+    elsewhere = (xx - 120) ** 2 + (yy - 30) ** 2 <= 8**2
+    masks = np.stack([elsewhere, arm, arm, wrist, wrist, wrist, elsewhere])
+    cues = ["prompt", "stay", "flow", "flow", "stay", "colour", "flow"]
+    on = np.array([False, True, True, False, False, False, False])
+    # Frames 3-4 followed the arm by motion; 5 is a colour find (fresh evidence), 6 moved far.
+    assert carried_on(on, masks, cues).tolist() == [False, True, True, True, True, False, False]
+
+
 def test_a_track_along_the_arm_does_not_supervise_the_object():
     # The prompt was drawn on the arm (as a track that slid onto it would be): every cue
     # follows it with full confidence, and the forearm caps that below what supervises the
@@ -614,6 +629,21 @@ def test_a_track_along_the_arm_does_not_supervise_the_object():
     elsewhere = _hand_keypoints(T, [(130, 20)] * T, palm=10)
     _, conf = O.propagate_masks(images, arm, 0, kp2d=elsewhere)
     assert (conf[1:] >= 0.5).all(), conf
+    # The patch slides along the arm into the hand: at the end it is mostly on the hand,
+    # no longer mostly on the forearm, and the track that followed it there by motion is
+    # still the arm.
+    from cogs.preprocess.tracking import on_forearm
+
+    images, slid = [], []
+    for t in range(T):
+        im = (_texture(H, W, seed=2) // 3 + 40).astype(np.uint8)
+        m = (np.abs(xx - (35 + 4 * t)) <= 12) & (np.abs(yy - 60) <= 4)
+        im[m] = (230, 140, 60)
+        images.append(im)
+        slid.append(m)
+    masks, conf = O.propagate_masks(np.stack(images), slid[0], 0, kp2d=kp)
+    assert all(_iou(masks[t], slid[t]) > 0.8 for t in range(T))
+    assert not on_forearm(masks, kp)[-1] and (conf[1:] <= UNCLEAR_CONFIDENCE).all(), conf
 
 
 def test_a_piece_grabcut_cuts_out_of_a_refound_object_yields_to_the_whole_window(monkeypatch):

@@ -37,7 +37,8 @@ convex object (a prompt mask of solidity >= 0.9: a ball, a box, a bottle) is kep
 the pieces of its mask that fit its outline (``drop_stray_pieces``). A frame's confidence
 is the cue's, capped by how much the mask looks like the prompt (``resemblance``), and
 at 0.1 where its surroundings look like it too (``unclear``: no evidence either way) or
-where it lies along a forearm (``on_forearm``: the arm holding the object).
+where it lies along a forearm (``on_forearm``: the arm holding the object), or was
+followed there by motion from such a frame (``carried_on``).
 
 Hands matter throughout: a handled object is always next to one, the fingers cover it, and
 a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
@@ -98,7 +99,8 @@ UNCLEAR_CONFIDENCE = 0.1
 # (docs/experiments/2026-11-28-masks-on-a-forearm.md): where the mask is the object it is
 # at most 0.37 (a juggled ball passing in front of the arm; 0 on the synthetic clips); on
 # the bottle clip's frames whose track followed a forearm it is 0.53-1.0 (0.31-0.49 where
-# the mask lies across the hand as well: those keep their confidence).
+# the mask lies across the hand as well: ``carried_on`` takes those where a motion cue
+# followed the arm there).
 ON_FOREARM_SHARE = 0.5
 
 # -- motion cues ----------------------------------------------------------------------
@@ -374,6 +376,26 @@ def on_forearm(masks: np.ndarray, kp2d: np.ndarray, share: float = ON_FOREARM_SH
             arm = forearm_regions(kp2d[t], (H, W)) & ~hand_regions(kp2d[t], (H, W))
             on[t] = (masks[t] & arm).sum() >= share * n
     return on & (np.r_[False, on[:-1]] | np.r_[on[1:], False])
+
+
+def carried_on(arm: np.ndarray, masks: np.ndarray, cues: list[str], agree: float = 0.5) -> np.ndarray:
+    """``arm`` [T] bool (``on_forearm``) grown along the track: a frame whose mask a motion
+    cue placed ("stay", "flow", "features", "carried") and that covers the same pixels as a
+    neighbouring frame's on the arm (IoU at least ``agree``) is on the arm too, whatever
+    share of it lies on the forearm now (the track that slid onto the other arm went on to
+    its wrist and hand). A colour find, the hand cue or a prompt is fresh evidence and
+    stops it -> [T] bool."""
+    out = arm.copy()
+    T = len(out)
+    changed = True
+    while changed:
+        changed = False
+        for t in range(T):
+            if out[t] or cues[t] not in ("stay", "flow", "features", "carried") or not masks[t].any():
+                continue
+            if any(0 <= u < T and out[u] and iou(masks[t], masks[u]) >= agree for u in (t - 1, t + 1)):
+                out[t] = changed = True
+    return out
 
 
 def foot_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float = 0.5) -> np.ndarray:
@@ -1238,7 +1260,7 @@ def propagate_masks(
         origin[t] = frames[-1] if t > frames[-1] else frames[0]
     if kp2d is not None:
         # The arm that holds the object is not the object, whatever cue found it there.
-        for t in np.flatnonzero(on_forearm(masks, kp2d)):
+        for t in np.flatnonzero(carried_on(on_forearm(masks, kp2d), masks, found)):
             if found[t] != "prompt":
                 conf[t] = min(conf[t], UNCLEAR_CONFIDENCE)
     log.debug("object cues per frame: %s", found)
