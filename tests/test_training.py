@@ -41,6 +41,12 @@ def test_six_stages_train_evaluate_and_export(small_synthetic, tmp_path):
                 "train_seconds", "stage_seconds", "n_gaussians", "notes"):
         assert key in m, key
     assert 5 < m["full"]["psnr"] < 60 and 0 < m["full"]["ssim"] <= 1
+    # One row per held-out frame, and the top-level numbers are their means.
+    rows = m["per_frame"]
+    assert len(rows) == 8 and len({r["frame"] for r in rows}) == 8
+    for group in ("full", "human_crop", "object_crop"):
+        vals = [r[group]["psnr"] for r in rows if r[group] is not None]
+        assert vals and abs(np.mean(vals) - m[group]["psnr"]) < 1e-9, group
     assert 0 <= m["decomposition"]["human_iou"] <= 1
     nv = m["novel_view"]  # the rings round the person: silhouettes and the human's crop
     assert nv["n_views"] > 0 and 0 < nv["human_iou"] <= 1 and 0 <= nv["object_iou"] <= 1

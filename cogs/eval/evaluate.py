@@ -8,7 +8,8 @@ decomposition IoU against the ground-truth masks, and object pose error.
 
 metrics.json schema (DESIGN.md): protocol, n_test_frames, full, human_crop, object_crop,
 novel_view, decomposition, object_pose_error, train_seconds, stage_seconds, n_gaussians,
-notes. A value that cannot be computed is null with a note saying why.
+notes; and per_frame, each held-out frame's full, human_crop and object_crop (the means
+above are over these). A value that cannot be computed is null with a note saying why.
 """
 
 from __future__ import annotations
@@ -154,7 +155,7 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
         poses = _test_time_poses(model, cfg, scene, test, pose_fit_steps, show_progress)
         fitted = _frame_metrics(model, scene, test, human_masks, object_masks, protocol, notes, None, poses,
                                 "eval: frames with fitted poses", show_progress)
-    full, hcrop, ocrop, h_iou, o_iou = strict
+    full, hcrop, ocrop, h_iou, o_iou, per_frame = strict
 
     metrics: dict = {
         "protocol": protocol,
@@ -182,7 +183,7 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
         if model.human is not None and test:
             metrics["body_pose_error"] = _body_pose_error(model.human, scene, list(scene.split["train"]), test)
     if fitted is not None:
-        f_full, f_h, f_o, f_hi, f_oi = fitted
+        f_full, f_h, f_o, f_hi, f_oi, _ = fitted
         metrics["test_time_pose_fit"] = {
             "steps": pose_fit_steps,
             "full": _mean_metrics(f_full, notes, "test_time_pose_fit.full"),
@@ -194,6 +195,7 @@ def evaluate(run: Path, out: Path | None = None, save_renders: bool = True, pose
         notes.append("test_time_pose_fit: the body pose of each held-out frame fitted to that frame (appearance, "
                      "object and scene frozen), the Anim-NeRF/InstantAvatar protocol; the top-level numbers use no test image")
     metrics.update(summary)
+    metrics["per_frame"] = per_frame
     metrics["notes"] = _summarise_notes(notes)
     write_json(out / "metrics.json", metrics)
     return metrics
@@ -220,21 +222,28 @@ def _test_time_poses(model, cfg, scene, test: list[int], steps: int, show_progre
 def _frame_metrics(model, scene, test, human_masks, object_masks, protocol, notes, rdir, poses=None,
                    label: str = "eval: held-out frames", show_progress: bool = True):
     """Per-frame metric rows over the held-out frames: (full, human crop, object crop,
-    human IoU, object IoU). `poses` optionally overrides the human pose per frame."""
+    human IoU, object IoU, per frame). `poses` optionally overrides the human pose per
+    frame. The crop lists hold the frames with a non-empty mask only; "per frame" is one
+    row per held-out frame ({"frame": its id, "full", "human_crop", "object_crop"}, a crop
+    None where its mask is empty or the protocol has none)."""
     gt = scene.gt
-    full, hcrop, ocrop, h_iou, o_iou = [], [], [], [], []
+    full, hcrop, ocrop, h_iou, o_iou, rows = [], [], [], [], [], []
     for t in track(test, label, show_progress):
         r = render_frame(model, scene, t, human_pose=poses.get(t) if poses else None)
         pred = _numpy(r.rgb)
         img = scene.images[t].astype(np.float32) / 255.0
-        full.append(image_metrics(pred, img, notes=notes))
+        row = {"frame": scene.frame_ids[t], "full": image_metrics(pred, img, notes=notes), "human_crop": None, "object_crop": None}
+        full.append(row["full"])
         c = crop_to_mask(pred, img, human_masks[t])
         if c is not None:
-            hcrop.append(image_metrics(*c, notes=notes))
+            row["human_crop"] = image_metrics(*c, notes=notes)
+            hcrop.append(row["human_crop"])
         if object_masks is not None and protocol != "neuman":
             c = crop_to_mask(pred, img, object_masks[t])
             if c is not None:
-                ocrop.append(image_metrics(*c, notes=notes))
+                row["object_crop"] = image_metrics(*c, notes=notes)
+                ocrop.append(row["object_crop"])
+        rows.append(row)
         if gt is not None:
             h_iou.append(_branch_iou(r, "human", gt.human_masks[t]))
             if scene.has_object and (gt.object_masks[t].any() or (r.branch_alpha["object"] > 0.5).any()):
@@ -247,7 +256,7 @@ def _frame_metrics(model, scene, test, human_masks, object_masks, protocol, note
             for b in model.available():
                 rb = render_frame(model, scene, t, branches=(b,))
                 write_image(rdir / f"{fid}_{b}.png", _numpy(rb.rgb))
-    return full, hcrop, ocrop, h_iou, o_iou
+    return full, hcrop, ocrop, h_iou, o_iou, rows
 
 
 def _summarise_notes(notes: list[str]) -> list[str]:
