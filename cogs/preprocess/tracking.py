@@ -384,17 +384,14 @@ def carried_on(arm: np.ndarray, masks: np.ndarray, cues: list[str], agree: float
     neighbouring frame's on the arm (IoU at least ``agree``) is on the arm too, whatever
     share of it lies on the forearm now (the track that slid onto the other arm went on to
     its wrist and hand). A colour find, the hand cue or a prompt is fresh evidence and
-    stops it -> [T] bool."""
+    stops it -> [T] bool. A track runs one way from the arm, so one sweep each way finds it."""
     out = arm.copy()
     T = len(out)
-    changed = True
-    while changed:
-        changed = False
-        for t in range(T):
-            if out[t] or cues[t] not in ("stay", "flow", "features", "carried") or not masks[t].any():
-                continue
-            if any(0 <= u < T and out[u] and iou(masks[t], masks[u]) >= agree for u in (t - 1, t + 1)):
-                out[t] = changed = True
+    for order, step in ((range(1, T), -1), (range(T - 2, -1, -1), 1)):
+        for t in order:
+            if (not out[t] and out[t + step] and cues[t] in ("stay", "flow", "features", "carried") and masks[t].any()
+                    and iou(masks[t], masks[t + step]) >= agree):
+                out[t] = True
     return out
 
 
