@@ -82,9 +82,9 @@ def test_a_failed_run_leaves_only_its_cache_says_where_and_resumes_from_it(no_pe
     with pytest.raises(UserError) as e:
         preprocess(no_person, out)
     partial = tmp_path / "scene.partial"
-    assert str(e.value) == (f"no person detected in any of the 3 frames of {no_person}, neither by MediaPipe's detector "
-                            "(it finds a person by the face) nor by its landmark model around the whole first frame: give "
-                            "--person-box FRAME X0 Y0 X1 Y1 around the person, or a larger --max-side (now 128)"
+    assert str(e.value) == (f"no person detected in any of the 3 frames of {no_person}: MediaPipe's detector (it finds a "
+                            "person by the face) and its landmark model around the whole first frame found none. Where a "
+                            "body is in view, give --person-box FRAME X0 Y0 X1 Y1 around it, or a larger --max-side (now 128)"
                             f"\nnothing was written to {out}; "
                             f"the 2 step(s) finished so far are cached in {partial / '.cache'}: run the same command "
                             f"again to resume from them (or delete {partial})")

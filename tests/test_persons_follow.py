@@ -231,3 +231,90 @@ def test_a_skeleton_that_explains_the_person_mask_scores_above_a_scrambled_one(d
     assert good > 0.3
     assert skeleton_fit(shrunk, human) < good - 0.1 and skeleton_fit(moved, human) < good - 0.1
     assert skeleton_fit(kp, np.zeros_like(human)) == 0.0
+
+
+# -- bodies laid on a hand ----------------------------------------------------------------
+
+
+def _standing(height: float = 180.0, x: float = 120.0, top: float = 10.0) -> np.ndarray:
+    """MediaPipe-ordered keypoints [33, 3] of an upright body ``height`` pixels tall: the
+    torso (shoulders to hips) a third of it."""
+    kp = np.full((33, 3), np.nan, np.float32)
+    u = height / 6.0
+    pts = {0: (x, top + 0.3 * u), 11: (x + 0.6 * u, top + u), 12: (x - 0.6 * u, top + u), 13: (x + 0.8 * u, top + 2 * u),
+           14: (x - 0.8 * u, top + 2 * u), 15: (x + 0.9 * u, top + 3 * u), 16: (x - 0.9 * u, top + 3 * u),
+           23: (x + 0.4 * u, top + 3 * u), 24: (x - 0.4 * u, top + 3 * u), 25: (x + 0.4 * u, top + 4.5 * u),
+           26: (x - 0.4 * u, top + 4.5 * u), 27: (x + 0.4 * u, top + 6 * u), 28: (x - 0.4 * u, top + 6 * u)}
+    for j, (px, py) in pts.items():
+        kp[j] = (px, py, 0.9)
+    return kp
+
+
+def _hand(wrist, palm: float) -> np.ndarray:
+    """21 Hands landmarks [21, 2] of an open hand pointing up, palm (wrist to the middle
+    finger's knuckle) ``palm`` pixels long."""
+    wx, wy = wrist
+    pts = np.zeros((21, 2))
+    pts[0] = (wx, wy)
+    for f, dx in enumerate((-0.5, -0.2, 0.0, 0.2, 0.4)):  # thumb, index, middle, ring, little
+        for k in range(4):
+            pts[1 + 4 * f + k] = (wx + dx * palm * (1 + 0.3 * k), wy - palm * (1 + 0.5 * k) * (0.6 if f == 0 else 1.0))
+    pts[9] = (wx, wy - palm)  # the middle finger's knuckle
+    return pts
+
+
+def _mask_of(kp: np.ndarray, shape=(200, 240)) -> np.ndarray:
+    from cogs.preprocess.persons import _torso_length, body_region
+
+    return body_region(kp, shape, 0.15 * _torso_length(kp), 0.3 * _torso_length(kp))
+
+
+def test_a_body_with_its_hands_is_a_person_and_one_inside_a_hand_is_not():
+    """`body_on_a_hand`: a hand is about a third of a torso long, and holds little of the
+    person's mask; a body the pose model laid on a close-up hand is smaller than the hand,
+    or its mask is mostly the hand."""
+    from cogs.preprocess.persons import HAND_BODY_SHARE, body_on_a_hand
+
+    person = _standing()
+    mask = _mask_of(person)
+    hands = [_hand(person[15, :2], 20.0), _hand(person[16, :2], 20.0)]  # torso 60 px: three palms
+    assert not body_on_a_hand(person, mask, hands)
+    assert not body_on_a_hand(person, mask, [])  # no hand found: nothing to compare with
+    # A hand twice as long, held out to the camera beside the body: still a person (1.5 palms).
+    assert not body_on_a_hand(person, mask, [_hand((215.0, 195.0), 39.0)])
+    # A close-up hand, palm 40 px, with a body whose torso is 45 px laid on it.
+    small = _standing(height=135.0, x=120.0, top=40.0)
+    big_hand = [_hand((120.0, 190.0), 40.0)]
+    assert body_on_a_hand(small, _mask_of(small), big_hand)
+    # A body whose torso is over three of that hand's palms is one, unless its mask lies on the hand.
+    tall = _standing(height=400.0, x=120.0, top=-100.0)
+    wide = np.zeros((200, 240), bool)
+    wide[:, 20:220] = True  # a mask over the whole frame: the hand's box holds little of it
+    assert not body_on_a_hand(tall, wide, big_hand)
+    on_hand = np.zeros((200, 240), bool)
+    lo, hi = big_hand[0].min(0).astype(int), big_hand[0].max(0).astype(int)
+    on_hand[lo[1] : hi[1], lo[0] : hi[0]] = True
+    on_hand[:, :2] = True  # and a sliver elsewhere
+    assert on_hand[:, :2].sum() < (1 - HAND_BODY_SHARE) * on_hand.sum()
+    assert body_on_a_hand(tall, on_hand, big_hand)
+
+
+def test_bodies_on_hands_are_dropped_and_a_track_mostly_on_hands_is_dropped_whole():
+    from cogs.preprocess.persons import PersonTrack, drop_bodies_on_hands
+
+    def track(T=6):
+        tr = PersonTrack.empty(T, 20, 30)
+        tr.detected[:] = True
+        tr.masks[:, 5:15, 10:20] = True
+        tr.kp2d[:] = 1.0
+        return tr
+
+    few = np.zeros(6, bool)
+    few[[1, 4]] = True
+    tr = drop_bodies_on_hands(track(), few)
+    assert tr.detected.tolist() == [True, False, True, True, False, True]
+    assert not tr.masks[[1, 4]].any() and np.isnan(tr.kp2d[[1, 4]]).all() and tr.masks[0].any()
+    half = np.zeros(6, bool)
+    half[:3] = True  # half the finds are hands: the rest are the same hand, missed by Hands
+    assert not drop_bodies_on_hands(track(), half).detected.any()
+    assert drop_bodies_on_hands(track(), np.zeros(6, bool)).detected.all()

@@ -691,6 +691,101 @@ def follow_body(images: np.ndarray, frame: int, box, on_frame=None, mask_thresho
     return track
 
 
+# A "person" MediaPipe Pose finds is a hand when the hands MediaPipe Hands finds on the
+# frame hold ``HAND_BODY_SHARE`` or more of its mask, or one of them is as long as the
+# body's torso over ``HAND_BODY_TORSO`` or more (``body_on_a_hand``). The torso (shoulders
+# to hips) is about three palms (wrist to the middle finger's knuckle) long; 1.5 is a hand
+# twice as near the camera as the torso. Measured (docs/experiments/2026-11-28-bodies-on-hands.md)
+# on every frame with a person of the six development clips, the synthetic video benchmark
+# at three settings and a real clip of a person seen from the shoulders down moving cups:
+# the hands hold at most 0.14 of a real person's mask (0.53 where the person's mask took the
+# cups in), and the torso is at least 2.0 palms (2.7 on the development clips). On a clip of
+# hands alone moving toy blocks and one of a torso cut at the shoulders, pouring from a
+# kettle, the pose model laid a body on a hand: 0.43-1.0 of its mask on the hands, its torso
+# 0.2-3.4 palms.
+HAND_BODY_SHARE = 0.6
+HAND_BODY_TORSO = 1.5
+# Hands landmarks: the wrist and the middle finger's knuckle (a palm's length apart).
+_WRIST, _MIDDLE_KNUCKLE = 0, 9
+
+
+def body_on_a_hand(kp: np.ndarray, mask: np.ndarray, hands: list[np.ndarray]) -> bool:
+    """Whether a body MediaPipe Pose found (keypoints ``kp`` [33, 3], person ``mask`` [H, W]
+    bool) is a hand seen as a body: ``hands`` are the 21 landmarks (pixels [21, 2]) of each
+    hand MediaPipe Hands found on the frame. The pose model lays a whole skeleton on a
+    close-up hand (a clip of hands alone, or of a torso whose shoulders are out of view);
+    its mask is then the hand and what the hand holds. See ``HAND_BODY_SHARE`` and
+    ``HAND_BODY_TORSO``."""
+    if not hands:
+        return False
+    H, W = mask.shape
+    on_hands = np.zeros((H, W), bool)
+    for pts in hands:
+        lo, hi = pts.min(0), pts.max(0)
+        grow = 0.25 * (hi - lo)  # the fingers' flesh beyond their joints
+        x0, y0 = np.floor(np.maximum(lo - grow, 0)).astype(int)
+        x1, y1 = np.ceil(np.minimum(hi + grow, (W, H))).astype(int)
+        on_hands[y0:y1, x0:x1] = True
+    if mask.any() and (mask & on_hands).sum() >= HAND_BODY_SHARE * mask.sum():
+        return True
+    palm = max(float(np.linalg.norm(pts[_MIDDLE_KNUCKLE] - pts[_WRIST])) for pts in hands)
+    torso = _torso_length(kp)
+    return bool(np.isfinite(torso) and torso < HAND_BODY_TORSO * palm)
+
+
+def bodies_on_hands(images: np.ndarray, track: PersonTrack, on_frame=None) -> np.ndarray:
+    """[T] bool: the frames of ``track`` whose body is a hand (``body_on_a_hand``), from
+    MediaPipe Hands (palm detector and landmark model, both in the pip package) on each
+    frame with a body. ``images`` [T, H, W, 3] uint8 RGB."""
+    out = np.zeros(len(images), bool)
+    if not track.detected.any():
+        return out
+    mp = import_mediapipe()
+    H, W = images.shape[1:3]
+    with _quiet_native_logs():
+        model = mp.solutions.hands.Hands(static_image_mode=True, max_num_hands=2, model_complexity=1, min_detection_confidence=0.5)
+    try:
+        for i, t in enumerate(np.flatnonzero(track.detected)):
+            with _quiet_native_logs(), warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message=".*GetPrototype.*", category=UserWarning)
+                res = model.process(np.ascontiguousarray(images[t]))
+            hands = [np.array([(p.x * W, p.y * H) for p in lm.landmark]) for lm in res.multi_hand_landmarks or []]
+            out[t] = body_on_a_hand(track.kp2d[t], track.masks[t], hands)
+            if on_frame:
+                on_frame(i + 1)
+    finally:
+        model.close()
+    return out
+
+
+def without_bodies_on_hands(images: np.ndarray, track: PersonTrack, on_frame=None) -> tuple[PersonTrack, list[int], bool]:
+    """``track`` without the bodies that are hands (``bodies_on_hands``) -> (the track, the
+    frames dropped, whether the whole track was dropped). When half or more of the frames
+    with a body are hands, the pose model was following a hand: its finds on the other
+    frames (a hand Hands missed, the object in it) are no person either, and every frame is
+    dropped. Otherwise only the frames on a hand are (the body is interpolated there)."""
+    on_hand = bodies_on_hands(images, track, on_frame)
+    whole = bool(on_hand.any()) and following_a_hand(track, on_hand)
+    return drop_bodies_on_hands(track, on_hand), [int(t) for t in np.flatnonzero(on_hand)], whole
+
+
+def following_a_hand(track: PersonTrack, on_hand: np.ndarray) -> bool:
+    """Whether half or more of the frames with a body have it on a hand (``on_hand`` [T] bool)."""
+    return 2 * int((on_hand & track.detected).sum()) >= max(1, int(track.detected.sum()))
+
+
+def drop_bodies_on_hands(track: PersonTrack, on_hand: np.ndarray) -> PersonTrack:
+    """``track`` (changed in place) with nobody on the frames ``on_hand`` [T] bool, or on
+    every frame when it was following a hand (``following_a_hand``)."""
+    if not on_hand.any():
+        return track
+    drop = track.detected.copy() if following_a_hand(track, on_hand) else on_hand
+    empty = PersonTrack.empty(*track.masks.shape)
+    for name in ("masks", "probs", "kp2d", "kp3d", "detected"):
+        getattr(track, name)[drop] = getattr(empty, name)[drop]
+    return track
+
+
 def refine_masks_sam2(images: np.ndarray, track: PersonTrack, checkpoint: Path, config: str, on_frame=None) -> np.ndarray:
     """Re-segment the person with SAM2 (box prompt from each frame's MediaPipe mask) -> [T, H, W] bool.
 

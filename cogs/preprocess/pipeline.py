@@ -35,7 +35,7 @@ from cogs.errors import UserError
 log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
-PERSONS_VERSION = 4  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body)
+PERSONS_VERSION = 5  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body; 5: bodies laid on a hand dropped)
 TRACKER_VERSION = 8  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into): bumping it redoes the object masks (and what reads them)
 MASKS_VERSION = 5  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off): bumping it redoes the masks step
 BODY_VERSION = 4  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it): bumping it redoes the body step
@@ -328,10 +328,15 @@ class _Runner:
             pe, pmeta = self._step(ui, 2, "persons", person_params, ["frames"], lambda lb: self._persons(lb, ui, images))
             self.person_choice = pmeta.get("stats", {}).get("followed")  # chosen among several people, or None
             if not pe["detected"].any():
-                raise UserError(f"no person detected in any of the {T} frames of {src}, neither by MediaPipe's detector "
-                                "(it finds a person by the face) nor by its landmark model around "
-                                f"{'the --person-box' if self.person else 'the whole first frame'}: give --person-box "
-                                f"FRAME X0 Y0 X1 Y1 around the person, or a larger --max-side (now {cfg.max_side})")
+                hands = pmeta.get("stats", {}).get("bodies_on_hands", [])
+                seen = (f"; the bodies they did find, in {len(hands)} frame(s) from frame {hands[0]} on, lay on a hand "
+                        "(MediaPipe Hands found it there): cogs needs the person's body in view, from the shoulders to "
+                        "the hips at least, not hands alone") if hands else ""
+                raise UserError(f"no person detected in any of the {T} frames of {src}: MediaPipe's detector (it finds a "
+                                "person by the face) and its landmark model around "
+                                f"{'the --person-box' if self.person else 'the whole first frame'} found none{seen}. "
+                                "Where a body is in view, give --person-box FRAME X0 Y0 X1 Y1 around it, or a larger "
+                                f"--max-side (now {cfg.max_side})")
 
             has_object = bool(self.positives) or cfg.object_masks is not None
             ob_params = {**self._prompt_params(), "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint),
@@ -423,7 +428,7 @@ class _Runner:
 
     def _persons(self, label, ui, images):
         from cogs.preprocess.objects import scale_box
-        from cogs.preprocess.persons import choose_person, detect_persons, follow_person, refine_masks_sam2
+        from cogs.preprocess.persons import choose_person, detect_persons, follow_person, refine_masks_sam2, without_bodies_on_hands
 
         T = len(images)
         update = ui.task(label, T)
@@ -449,8 +454,22 @@ class _Runner:
                             "nearest the object's box" if near else "nearest the centre",
                             " ".join(f"{v:g}" for v in followed[1:]), k)
                 track = follow_person(images, k, box, on_frame=lambda n: update(n), mask_threshold=self.cfg.person_threshold)
+        on_hands: list[int] = []
+        bar = ui.task(f"{label} (hands)", int(track.detected.sum())) if track.detected.any() else None
+        track, dropped, whole = without_bodies_on_hands(images, track, on_frame=bar)
+        on_hands += dropped
+        if dropped:
+            log.warning("MediaPipe Pose laid a body on a hand in %d frame(s): %s%s (MediaPipe Hands found the hand there); %s",
+                        len(dropped), dropped[:10], "..." if len(dropped) > 10 else "",
+                        "it was following a hand, so none of its finds is kept" if whole else "the body there is interpolated")
         if not track.detected.any():
             track = self._body_without_face(images, size, update)
+            track, dropped, whole = without_bodies_on_hands(images, track)
+            if dropped:
+                log.warning("MediaPipe's landmark model too laid a body on a hand, in %d frame(s); none of its finds is kept"
+                            if whole else "MediaPipe's landmark model laid a body on a hand in %d frame(s); the body there "
+                            "is interpolated", len(dropped))
+            on_hands += dropped
         if self.cfg.refine_person_masks and self.cfg.sam2_checkpoint is None:
             import cv2
 
@@ -470,7 +489,8 @@ class _Runner:
             track.masks = refine_masks_sam2(images, track, self.cfg.sam2_checkpoint, self.cfg.sam2_config, on_frame=lambda k: update2(k))
         n = int(track.detected.sum())
         missing = [i for i in range(T) if not track.detected[i]]
-        meta = {"summary": f"person in {n}/{T} frames", "stats": {"detected": n, "missing_frames": missing[:50]}}
+        meta = {"summary": f"person in {n}/{T} frames", "stats": {"detected": n, "missing_frames": missing[:50],
+                                                                  "bodies_on_hands": sorted(set(on_hands))[:50]}}
         if choice is not None:
             meta["stats"]["followed"] = followed
         if missing and n:
