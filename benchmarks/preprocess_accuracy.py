@@ -1,11 +1,12 @@
 """Accuracy of `cogs preprocess` against the synthetic scene's ground truth.
 
     python benchmarks/preprocess_accuracy.py [--frames 40] [--width 640] [--height 480]
-        [--seed 0] [--scene DIR] [--work DIR] [--focal-prior]
+        [--seed 0] [--variant 0] [--scene DIR] [--work DIR] [--focal-prior]
 
 ``--seed`` changes only the synthetic scene's noisy pipeline-like inputs, which the
-command does not read (the rendered frames are the same); another ``--frames`` or size
-renders a different clip.
+command does not read (the rendered frames are the same); ``--variant`` renders another
+video of the same story (`cogs.data.synth.motion.script`: the box's place, the walk, the
+camera path), as do another ``--frames`` or size.
 
 1. Generates the synthetic benchmark scene (`cogs.data.synth`), or reads `--scene DIR`.
 2. Encodes its frames as a lossy H.264 video (PyAV, CRF 10, like a phone's; one encoder
@@ -105,6 +106,7 @@ def main(argv=None) -> int:
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--variant", type=int, default=0, help="choreography variant of the synthetic video (0: the reference)")
     ap.add_argument("--scene", type=Path, default=None, help="use this synthetic scene instead of generating one")
     ap.add_argument("--work", type=Path, default=None, help="working folder (default: a temporary one)")
     ap.add_argument("--focal-prior", action="store_true", help="use the 1.2 x longer-side focal prior, not the true focal")
@@ -128,7 +130,8 @@ def main(argv=None) -> int:
 
         scene_dir = work / "synthetic"
         if not (scene_dir / "scene.json").exists():
-            gen = generate_scene(SynthConfig(frames=args.frames, width=args.width, height=args.height, seed=args.seed), show_progress=False)
+            gen = generate_scene(SynthConfig(frames=args.frames, width=args.width, height=args.height, seed=args.seed,
+                                             variant=args.variant), show_progress=False)
             save_scene(gen, scene_dir)
     else:
         scene_dir = args.scene
@@ -248,6 +251,7 @@ def main(argv=None) -> int:
     res = {
         "benchmark": "preprocess_accuracy",
         "frames": T, "width": W, "height": H,
+        "variant": int((gt_scene.source.get("config") or {}).get("variant", 0)) if args.scene else args.variant,
         "focal": "prior 1.2 x longer side" if args.focal_prior else "true focal given",
         "video": {"codec": "libx264", "crf": 10, "encoder_threads": 1, "mbtree": False},
         "box_frame": box_frame,

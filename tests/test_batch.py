@@ -53,12 +53,14 @@ def test_defaults_apply_to_every_entry_and_the_entrys_own_options_win(tmp_path):
     doc = {"defaults": {"synth": {**SMALL, "seed": 3}, "train": {"preset": "quick", "set": ["schedule.I=5"]},
                         "eval": {"pose_fit_steps": 0}},
            "sequences": [{"synth": None},
-                         {"synth": {"seed": 4}, "train": {"set": ["schedule.I=7"]}, "eval": {"renders": False}}]}
+                         {"synth": {"seed": 4}, "train": {"set": ["schedule.I=7"]}, "eval": {"renders": False}},
+                         {"synth": {"variant": 2}}]}
     problems: list[str] = []
-    a, b = parse_manifest(doc, tmp_path, problems)
+    a, b, c = parse_manifest(doc, tmp_path, problems)
     assert not problems
     assert (a.name, a.options["seed"], a.options["frames"]) == ("synth_seed3", 3, 16)
     assert (b.name, b.options["seed"]) == ("synth_seed4", 4)
+    assert (c.name, c.options["seed"], c.options["variant"]) == ("synth_seed3_variant2", 3, 2)  # another video
     assert b.overrides == ("schedule.I=5", "schedule.I=7")  # the entry's override comes last and wins
     assert a.eval == {"pose_fit_steps": 0, "renders": True} and b.eval == {"pose_fit_steps": 0, "renders": False}
 

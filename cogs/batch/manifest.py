@@ -4,7 +4,7 @@
       train: {preset: quick, set: ["schedule.VI=2000"]}
       eval: {pose_fit_steps: 0}
     sequences:
-      - synth: {seed: 0, frames: 100}          # name defaults to synth_seed0
+      - synth: {seed: 0, frames: 100}          # name defaults to synth_seed0 (synth_seed0_variantN with a variant)
       - name: kitchen
         video: clips/kitchen.mp4
         preprocess: {object_box: [410, 300, 520, 420], stride: 2}
@@ -209,7 +209,8 @@ def _entry(raw: Any, defaults: dict, base: Path, where: str, problems: list[str]
 
     name = raw.get("name")
     if name is None:
-        name = f"synth_seed{options.get('seed', 0)}" if kind == "synth" else source.stem
+        name = (f"synth_seed{options.get('seed', 0)}" + (f"_variant{options['variant']}" if options.get("variant") else "")
+                if kind == "synth" else source.stem)
     if not isinstance(name, str) or not NAME_RE.fullmatch(name) or name in RESERVED:
         problems.append(f"{where}: name {name!r} must be a folder name of letters, digits, '.', '_' or '-' "
                         "(set `name:`)")

@@ -29,7 +29,10 @@ class Synth:
     fps: float = 10.0
     """Frame rate recorded in scene.json."""
     seed: int = 0
-    """Seed of all noise and sampling: the same seed writes the same files."""
+    """Seed of all noise and sampling: the same seed writes the same files (the rendered video is the same at every seed)."""
+    variant: int = 0
+    """Choreography variant: 0 is the reference video (the demo scene); another number renders another video of the
+    same story (the box's place on the table, the walk in and out, the camera path drawn from it)."""
     preview: bool = False
     """Also write OUT/preview.png: a contact sheet of images, masks, depth and the noisy inputs."""
     noise: NoiseConfig = field(default_factory=NoiseConfig)
@@ -48,6 +51,8 @@ class Synth:
             raise UserError(f"--fps must be a positive number of frames per second, got {self.fps:g}")
         if self.seed < 0:
             raise UserError(f"--seed must be >= 0, got {self.seed}")
+        if self.variant < 0:
+            raise UserError(f"--variant must be >= 0, got {self.variant}")
         for f in dataclasses.fields(NoiseConfig):
             v = getattr(self.noise, f.name)
             if not isinstance(v, bool) and (not math.isfinite(v) or v < 0):
@@ -61,7 +66,7 @@ class Synth:
         from cogs.data.synth.config import SynthConfig
 
         return SynthConfig(frames=self.frames, width=self.width, height=self.height, fps=self.fps, seed=self.seed,
-                           noise=self.noise)
+                           variant=self.variant, noise=self.noise)
 
     def check_memory(self) -> None:
         """Refuse (UserError, before any work) a scene whose generation cannot fit in the

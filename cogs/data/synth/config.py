@@ -68,7 +68,11 @@ class SynthConfig:
     fps: float = 10.0
     """Frame rate written to scene.json (the 10-second script matches video time only when frames / fps = 10)."""
     seed: int = 0
-    """Seed of every random draw (noise, point sampling)."""
+    """Seed of every random draw of the inputs (noise, point sampling): the rendered video is the same at every seed."""
+    variant: int = 0
+    """Choreography variant: 0 is the reference script (the demo scene); any other number is
+    another video of the same story: the box's resting place and heading, the walk in and out
+    and the camera path drawn from this number (`motion.script`)."""
     fov_deg: float = 55.0
     """Vertical field of view of the camera, degrees."""
     supersample: int = 3

@@ -104,10 +104,10 @@ def _room_and_textures() -> tuple[Room, tx.BakedTextures]:
 
 
 @functools.lru_cache(maxsize=2)
-def _choreography(shape: tuple[float, ...]) -> Choreography:
+def _choreography(shape: tuple[float, ...], variant: int = 0) -> Choreography:
     from cogs.body import load_body_model
 
-    return Choreography(load_body_model("anny"), np.asarray(shape, dtype=np.float64))
+    return Choreography(load_body_model("anny"), np.asarray(shape, dtype=np.float64), variant)
 
 
 def build_assets(config: SynthConfig) -> Assets:
@@ -122,7 +122,7 @@ def build_assets(config: SynthConfig) -> Assets:
     room, baked = _room_and_textures()
     return Assets(
         model=model,
-        choreo=_choreography(tuple(float(s) for s in config.shape)),
+        choreo=_choreography(tuple(float(s) for s in config.shape), config.variant),
         shape=shape,
         faces=can.faces.numpy().astype(np.int64),
         canonical=cv,

@@ -67,6 +67,70 @@ CAMERA_KEYS = np.array([
 
 
 @dataclass
+class Script:
+    """The keyframes one clip follows: ``ROOT_KEYS``, the box's resting place and heading,
+    ``CAMERA_KEYS``."""
+
+    root_keys: np.ndarray  # [6, 4] script time, x, y, yaw (deg)
+    box_rest_xy: np.ndarray  # [2]
+    box_rest_yaw_deg: float
+    camera_keys: np.ndarray  # [3, 4] script time, x, y, z
+
+
+def script(variant: int = 0) -> Script:
+    """The keyframes of choreography ``variant``: 0 is the reference script (the module's
+    constants, the scene every number of the project was measured on); any other number
+    draws, from a generator seeded by it, the same story told differently:
+
+    - the box rests up to 5 cm further along the table's near edge and 8 cm across it,
+      turned up to 20 deg either way; the spot the person picks it up from and their
+      heading there turn and move with it, so the reach and the grasp are the reference's;
+    - the walk in starts up to 0.3 m nearer or 0.2 m further and 0.35 m to either side;
+    - after the pickup the person turns left to face a walk out whose direction lies
+      anywhere between the reference's and 40 deg nearer the camera's side (away from the
+      table), 0.8-1.15x as long;
+    - each camera keyframe moves up to 0.3 m sideways, 0.2 m in depth and 0.15 m in height.
+
+    The ranges keep the person on the rug, clear of the table, and in view."""
+    if variant == 0:
+        return Script(ROOT_KEYS.copy(), BOX_REST_XY.copy(), BOX_REST_YAW_DEG, CAMERA_KEYS.copy())
+    rng = np.random.default_rng([int(variant), 0xC065])
+    dxy = rng.uniform([-0.05, -0.08], [0.05, 0.08])
+    dyaw = float(rng.uniform(-20.0, 20.0))
+    box_xy = BOX_REST_XY + dxy
+    turn = _rot("z", np.deg2rad(dyaw))[:2, :2]
+    # The pickup spot and the first steps after it, carried with the box.
+    stand = box_xy + turn @ (ROOT_KEYS[1, 1:3] - BOX_REST_XY)
+    after = box_xy + turn @ (ROOT_KEYS[3, 1:3] - BOX_REST_XY)
+    start = np.array([ROOT_KEYS[0, 1] + rng.uniform(-0.2, 0.3), stand[1] + rng.uniform(-0.35, 0.35)])
+    towards = stand - start
+    approach_yaw = float(np.degrees(np.arctan2(towards[1], towards[0]))) + 90.0  # facing (sin, -cos) of the yaw
+    ref_out = ROOT_KEYS[4, 1:3] - ROOT_KEYS[3, 1:3]
+    ref_angle = float(np.degrees(np.arctan2(ref_out[1], ref_out[0])))
+    out_angle = ref_angle - float(rng.uniform(0.0, 40.0))  # clockwise: towards -x, away from the table
+    scale = float(rng.uniform(0.8, 1.15))
+
+    def step(length: float, angle: float) -> np.ndarray:
+        a = np.radians(angle)
+        return after + scale * length * np.array([np.cos(a), np.sin(a)])
+
+    end_ref = ROOT_KEYS[5, 1:3] - ROOT_KEYS[3, 1:3]
+    end_angle = out_angle + float(np.degrees(np.arctan2(end_ref[1], end_ref[0]))) - ref_angle
+    final_yaw = ROOT_KEYS[5, 3] + (out_angle - ref_angle)  # the reference's heading, turned with the walk
+    root = np.array([
+        [ROOT_KEYS[0, 0], *start, approach_yaw],
+        [ROOT_KEYS[1, 0], *stand, ROOT_KEYS[1, 3] + dyaw],
+        [ROOT_KEYS[2, 0], *stand, ROOT_KEYS[2, 3] + dyaw],
+        [ROOT_KEYS[3, 0], *after, final_yaw - (ROOT_KEYS[5, 3] - ROOT_KEYS[3, 3])],
+        [ROOT_KEYS[4, 0], *step(np.linalg.norm(ref_out), out_angle), final_yaw - (ROOT_KEYS[5, 3] - ROOT_KEYS[4, 3])],
+        [ROOT_KEYS[5, 0], *step(np.linalg.norm(end_ref), end_angle), final_yaw],
+    ])
+    camera = CAMERA_KEYS.copy()
+    camera[:, 1:] += rng.uniform([-0.3, -0.2, -0.15], [0.3, 0.2, 0.15], size=(len(camera), 3))
+    return Script(root, box_xy, BOX_REST_YAW_DEG + dyaw, camera)
+
+
+@dataclass
 class Motion:
     times: np.ndarray  # [T] script seconds of each frame
     pose: np.ndarray  # [T, J, 3] axis-angle (body model convention)
@@ -211,7 +275,8 @@ def _box_signed_distance(points: np.ndarray, R: np.ndarray, c: np.ndarray, half:
 class Choreography:
     """Evaluates the script at arbitrary times for one body model and shape."""
 
-    def __init__(self, model: BodyModel, shape: np.ndarray):
+    def __init__(self, model: BodyModel, shape: np.ndarray, variant: int = 0):
+        self.script = script(variant)
         self.rig = _Rig(model, shape)
         rig = self.rig
         names = model.bone_names
@@ -219,13 +284,14 @@ class Choreography:
         w = rig.weights.numpy()
         self.hand_r_vertices = w[:, self.hand_r].sum(1) > 0.5
         self.box_half = BOX_SIZE / 2
-        self.box_rest_R = _rot("z", np.deg2rad(BOX_REST_YAW_DEG))
-        self.box_rest_c = np.array([BOX_REST_XY[0], BOX_REST_XY[1], TABLE_TOP_Z + self.box_half[2]])
+        self.box_rest_R = _rot("z", np.deg2rad(self.script.box_rest_yaw_deg))
+        xy = self.script.box_rest_xy
+        self.box_rest_c = np.array([xy[0], xy[1], TABLE_TOP_Z + self.box_half[2]])
         self.grasp_target = self._solve_grasp()
 
     # -- root, gait and torso ----------------------------------------------------------------
     def _root(self, t):
-        k = _pchip(ROOT_KEYS, t)
+        k = _pchip(self.script.root_keys, t)
         return k[:, :2], np.deg2rad(k[:, 2])
 
     def _gait(self, t):
@@ -350,7 +416,7 @@ class Choreography:
         look = (1 - box_weight)[:, None] * look + box_weight[:, None] * X[:, :3, 3]
         sigma = max(0.6 * n_frames / SCRIPT_SECONDS, 1e-3)
         look = gaussian_filter1d(look, sigma, axis=0, mode="nearest")
-        eye = _pchip(CAMERA_KEYS, t)
+        eye = _pchip(self.script.camera_keys, t)
         w2c = np.stack([look_at(eye[i], look[i]) for i in range(n_frames)])
         return Motion(
             times=t,
