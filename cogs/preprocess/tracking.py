@@ -785,14 +785,23 @@ class _Tracker:
         """(static [H, W] bool: pixels that show the static scene, moving [H, W] bool: pixels
         that clearly do not) in frame t, judged against the frames the pass came through
         where the object was found (its masks are known there, so a resting object is not
-        taken for scene); None without person masks or such frames.
+        taken for scene): those 1-12 frames back (``_SCENE_OFFSETS``), or the last one where
+        it has been lost for longer, when re-finding it matters most (a synthetic variant's
+        box, lost behind the body, was re-found on a painting the colour search could not
+        tell from scene); None without person masks or such frames.
 
         The thresholds follow the frame's own residual noise off the person: most pixels
         there are static scene.
         """
         if self.scene is None:
             return None
-        refs = tuple(u for u in (t - k * direction for k in _SCENE_OFFSETS) if 0 <= u < len(self.images) and self.masks[u].any())
+        T = len(self.images)
+        refs = tuple(u for u in (t - k * direction for k in _SCENE_OFFSETS) if 0 <= u < T and self.masks[u].any())
+        if not refs:
+            # Lost for longer than the offsets reach: the last frame the pass found it in
+            # still tells the static scene (a look-alike on the wall) from what moved.
+            last = next((u for u in range(t - direction, -1 if direction > 0 else T, -direction) if self.masks[u].any()), None)
+            refs = () if last is None else (last,)
         key = (t, refs)
         if key not in self._scene_maps:
             maps = None
