@@ -2,8 +2,9 @@
 
 ``propagate_masks`` walks away from the prompt frame in both directions. Each frame is
 first compared with the static scene that the frames the pass came through show there
-(``background.StaticScene``): static-scene pixels are never object, and pixels that moved
-and are not the person are object whatever their colour. Then each frame takes the first
+(``background.StaticScene``; after a long loss, the last frame it found the object in):
+static-scene pixels are never object, and pixels that moved and are not the person are
+object whatever their colour. Then each frame takes the first
 of three cues that holds (``_Tracker._step``):
 
 1. **motion**: the object's last extent is placed where it was, where SIFT matches from
@@ -19,7 +20,8 @@ of three cues that holds (``_Tracker._step``):
    whole frame (``locate``), weighted towards the motion prediction and the hands, then
    GrabCut seeded there (a fast or reappearing object: a bounced ball); where GrabCut
    keeps a piece the rest of the object surrounds (``unclear``: one panel of a ball
-   between its seams), the window's probable pixels instead;
+   between its seams), the window's probable pixels instead. An object lost while
+   carried is looked for only where a hand has been since (``HAND_PATH_REACH``);
 3. **hand**: for a few frames after an object seen carried by a hand was lost, the
    moving piece off the person at either hand (``moving_at_hand``): a handled object
    that turns shows faces no colour model has seen. Without a static scene to compare
@@ -102,6 +104,14 @@ UNCLEAR_CONFIDENCE = 0.1
 # the mask lies across the hand as well: ``carried_on`` takes those where a motion cue
 # followed the arm there).
 ON_FOREARM_SHARE = 0.5
+# An object lost while carried is searched for by colour only within this many object sizes
+# (the root of its usual area) of where a visible hand has been since it was last found: a
+# carried object is still in the hand, or was put down by it. On a variant of the synthetic
+# video the box, lost behind the turning body, was re-found on a green wallpaper the camera
+# had just revealed (docs/experiments/2026-11-28-bodies-on-hands.md). Checked at 1.0 and
+# 1.5 on the six development clips, the synthetic video benchmark at three settings, five
+# variants of it and two unseen real clips: nothing else changes at either.
+HAND_PATH_REACH = 1.5
 
 # -- motion cues ----------------------------------------------------------------------
 
@@ -582,6 +592,8 @@ class _State:
     lost: int = 0  # frames since it was found
     carrier: int | None = None  # the hand carrying it (0 left, 1 right)
     carried: int = 0  # consecutive frames it was seen carried by that hand
+    held: bool = False  # carried (two frames or more) in the last frame it was found
+    into_gap: bool = False  # a pass back into frames the first pass lost it in
     pending: tuple | None = field(default=None, repr=False)  # see _Tracker.run
 
 
@@ -831,6 +843,23 @@ class _Tracker:
         score = float(self.base_model.prob(self.images[t, y0:y1, x0:x1])[mask[y0:y1, x0:x1]].mean())
         return float(np.clip(score / max(self.ref_score, 1e-6), 0.0, 1.0))
 
+    def _hand_path(self, t0: int, t1: int, reach: float) -> np.ndarray | None:
+        """[H, W] bool: the pixels within ``reach`` of a visible hand on any frame from t0 to
+        t1 (either order), or None when no hand is visible on them."""
+        import cv2
+
+        H, W = self.images.shape[1:3]
+        out = np.zeros((H, W), np.uint8)
+        r = max(1, int(round(reach)))
+        any_hand = False
+        for u in range(min(t0, t1), max(t0, t1) + 1):
+            for h in (0, 1):
+                if _visible(self.hands, u, h):
+                    x, y = (int(round(v)) for v in self.hands[u, h, :2])
+                    cv2.circle(out, (x, y), r, 1, thickness=-1)
+                    any_hand = True
+        return out > 0 if any_hand else None
+
     def _hands_mask(self, t: int) -> np.ndarray:
         if self.kp2d is None:
             return np.zeros(self.images.shape[1:3], bool)
@@ -865,6 +894,12 @@ class _Tracker:
             # colours are whatever is behind it, has little else to go by).
             st.carrier = holding_hand(self.kp2d, start, m0)
             st.carried = 0 if st.carrier is None else 2
+        # In a hand's grip (a prompt), or at a hand (where a pass into a gap starts: found
+        # again there), it is searched for where a hand has been (``HAND_PATH_REACH``).
+        reach = 0.5 * float(np.sqrt(m0.sum()))
+        st.into_gap = fill
+        st.held = st.carried >= 2 if not fill else any(
+            _visible(self.hands, start, h) and _distance_to(m0, self.hands[start, h, :2]) <= reach for h in (0, 1))
 
         def undo(st: _State, t_end: int) -> tuple[_State, ColourModel]:
             """Drop a tentative hand find and what followed it, up to frame t_end."""
@@ -931,6 +966,7 @@ class _Tracker:
         if f.confidence >= 0.8:
             st.area = 0.7 * st.area + 0.3 * float(f.extent.sum())
         st.lost = 0
+        st.held = st.carried >= 2
         st.mask, st.visible, st.t, st.colour = f.extent, f.visible, t, f.colour
         self.bank.add(t, f.visible)
         return self._adapted(t, f.visible)
@@ -1065,7 +1101,11 @@ class _Tracker:
 
         # 2. Colour search. The evidence needed falls with prior plausibility: min_score
         #    at a moderately likely place, 0.7x that where predicted or at a hand, 1.3x far
-        #    from both.
+        #    from both. An object lost while carried is where a hand has been since.
+        if st.held and (st.into_gap or st.t != t - direction):
+            path = self._hand_path(st.t, t, HAND_PATH_REACH * float(np.sqrt(max(st.area, 1.0))))
+            if path is not None:
+                prob_search = np.where(path, prob_search, 0.0)
         centre, score, plausible = locate(prob_search, st, hands_t, floor)
         if score >= self.min_score * self.ref_score * (1.3 - 0.6 * plausible):
             cf = min(1.0, score / self.ref_score)
