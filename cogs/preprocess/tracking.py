@@ -2,9 +2,9 @@
 
 ``propagate_masks`` walks away from the prompt frame in both directions. Each frame is
 first compared with the static scene that the frames the pass came through show there
-(``background.StaticScene``; after a long loss, the last frame it found the object in):
-static-scene pixels are never object, and pixels that moved and are not the person are
-object whatever their colour. Then each frame takes the first
+(``background.StaticScene``): static-scene pixels are never object (after a long loss,
+the last frame it was found in still rules them out of the colour search), and pixels
+that moved and are not the person are object whatever their colour. Then each frame takes the first
 of three cues that holds (``_Tracker._step``):
 
 1. **motion**: the object's last extent is placed where it was, where SIFT matches from
@@ -793,14 +793,14 @@ class _Tracker:
         band[y0:y1, x0:x1] = cv2.dilate(st.mask[y0:y1, x0:x1].astype(np.uint8), k) > 0
         return ColourModel.fit(self.images[st.t], st.visible, band & ~st.visible, self.distractors)
 
-    def _static_and_moving(self, t: int, direction: int) -> tuple[np.ndarray, np.ndarray] | None:
+    def _static_and_moving(self, t: int, direction: int, last: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
         """(static [H, W] bool: pixels that show the static scene, moving [H, W] bool: pixels
         that clearly do not) in frame t, judged against the frames the pass came through
         where the object was found (its masks are known there, so a resting object is not
-        taken for scene): those 1-12 frames back (``_SCENE_OFFSETS``), or the last one where
-        it has been lost for longer, when re-finding it matters most (a synthetic variant's
-        box, lost behind the body, was re-found on a painting the colour search could not
-        tell from scene); None without person masks or such frames.
+        taken for scene): those 1-12 frames back (``_SCENE_OFFSETS``); None without person
+        masks or such frames. ``last``: against the last frame the pass found the object
+        in, for when none lies at those offsets (``_step`` rules the static scene out of
+        the colour search with it).
 
         The thresholds follow the frame's own residual noise off the person: most pixels
         there are static scene.
@@ -808,12 +808,11 @@ class _Tracker:
         if self.scene is None:
             return None
         T = len(self.images)
-        refs = tuple(u for u in (t - k * direction for k in _SCENE_OFFSETS) if 0 <= u < T and self.masks[u].any())
-        if not refs:
-            # Lost for longer than the offsets reach: the last frame the pass found it in
-            # still tells the static scene (a look-alike on the wall) from what moved.
-            last = next((u for u in range(t - direction, -1 if direction > 0 else T, -direction) if self.masks[u].any()), None)
-            refs = () if last is None else (last,)
+        if last:
+            u = next((u for u in range(t - direction, -1 if direction > 0 else T, -direction) if self.masks[u].any()), None)
+            refs = () if u is None else (u,)
+        else:
+            refs = tuple(u for u in (t - k * direction for k in _SCENE_OFFSETS) if 0 <= u < T and self.masks[u].any())
         key = (t, refs)
         if key not in self._scene_maps:
             maps = None
@@ -1045,6 +1044,12 @@ class _Tracker:
         maps = self._static_and_moving(t, direction)
         if maps is None:
             static, moving = np.zeros((H, W), bool), np.zeros((H, W), bool)
+            # No frame at the offsets found it (lost for a while): the last one that did
+            # still keeps the static scene out of the colour search below (a look-alike
+            # painting on the wall); the other cues go on without a static scene.
+            seen = self._static_and_moving(t, direction, last=True)
+            if seen is not None:
+                prob_search[seen[0]] = 0.0
         else:
             static, moving = maps
             # What moved and is not the person (nor a hand) is the object, whatever its colour.
