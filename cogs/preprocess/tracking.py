@@ -4,8 +4,8 @@
 first compared with the static scene that the frames the pass came through show there
 (``background.StaticScene``): static-scene pixels are never object (after a long loss,
 the last frame it was found in still rules them out of the colour search), and pixels
-that moved and are not the person are object whatever their colour. Then each frame takes the first
-of three cues that holds (``_Tracker._step``):
+that moved and are not the person are object whatever their colour. Then each frame
+takes the first of three cues that holds (``_Tracker._step``):
 
 1. **motion**: the object's last extent is placed where it was, where SIFT matches from
    remembered views carry it (``FeatureBank``), where dense optical flow carries it
