@@ -1701,6 +1701,22 @@ def test_object_probability_is_damped_on_the_head_unless_the_object_was_there():
     assert prob.min() == 1.0
 
 
+def test_a_long_stretch_without_a_trusted_object_mask_is_pointed_out_with_where_to_add_a_box():
+    from cogs.preprocess.prompts import lost_stretch_warning, untrusted_stretches
+
+    conf = np.full(40, 0.8)
+    conf[3:5] = 0.0  # two frames: a blink, not worth a warning
+    conf[10:16] = 0.1  # six frames under 0.2: pointed out
+    conf[30:40] = 0.0  # ten frames to the end: pointed out first
+    assert untrusted_stretches(conf, 0.2) == [(30, 39), (10, 15)]
+    assert untrusted_stretches(conf, 0.05) == [(30, 39)]
+    text = lost_stretch_warning(untrusted_stretches(conf, 0.2), 40)
+    assert "frames 30-39, 10-15 (16 of 40 kept frames)" in text and "--object-box 34 X0 Y0 X1 Y1" in text
+    # On a long clip, a stretch must be a tenth of it.
+    assert untrusted_stretches(np.r_[np.zeros(8), np.ones(92)], 0.2) == []
+    assert lost_stretch_warning([], 40) is None
+
+
 def test_a_prompt_too_small_for_the_tracker_is_warned_about_naming_the_option_and_the_remedy():
     from cogs.preprocess.prompts import MIN_PROMPT_PIXELS, parse_prompts, small_prompt_warning
 

@@ -530,7 +530,8 @@ class _Runner:
             conf = masks.reshape(T, -1).any(1).astype(np.float64)
             update(T)
         else:
-            from cogs.preprocess.prompts import box_mask, guessed_prompt_warning, lookalike_prompt_warning, small_prompt_warning
+            from cogs.preprocess.prompts import (box_mask, guessed_prompt_warning, lookalike_prompt_warning, lost_stretch_warning,
+                                                 small_prompt_warning, untrusted_stretches)
 
             scaled = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.positives]
             scaled_neg = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.negatives]
@@ -564,6 +565,11 @@ class _Runner:
                     text = lookalike_prompt_warning(p, lookalike[p.frame])
                     if text:
                         log.warning("%s", text)
+                from cogs.branches.object import ObjectConfig
+
+                text = lost_stretch_warning(untrusted_stretches(conf, ObjectConfig().min_confidence), T)
+                if text:
+                    log.warning("%s", text)
         if not masks.any():
             raise UserError("the object masks are empty in every frame (check --object-box / --object-masks)")
         n = int(masks.reshape(T, -1).any(1).sum())

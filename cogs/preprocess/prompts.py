@@ -222,6 +222,45 @@ def guessed_prompt_warning(prompt: BoxPrompt) -> str:
             "object stands against other colours, or give --sam2-checkpoint or --object-masks")
 
 
+# A stretch of frames where the classical tracker lost the object, or does not trust its
+# mask (confidence under the object branch's ``min_confidence``), is pointed out when it is at
+# least this many frames and this share of the clip long: those frames do not supervise the
+# object, and a box on one of them restarts the tracking there.
+LOST_STRETCH_FRAMES = 5
+LOST_STRETCH_SHARE = 0.1
+
+
+def untrusted_stretches(confidence: np.ndarray, min_confidence: float) -> list[tuple[int, int]]:
+    """(first, last) frame of each run of frames with ``confidence`` [T] under
+    ``min_confidence`` that is long enough to point out (``LOST_STRETCH_FRAMES``,
+    ``LOST_STRETCH_SHARE``), longest first."""
+    low = np.asarray(confidence) < min_confidence
+    least = max(LOST_STRETCH_FRAMES, int(math.ceil(LOST_STRETCH_SHARE * len(low))))
+    runs, start = [], None
+    for t, v in enumerate([*low, False]):
+        if v and start is None:
+            start = t
+        elif not v and start is not None:
+            if t - start >= least:
+                runs.append((start, t - 1))
+            start = None
+    return sorted(runs, key=lambda r: (r[0] - r[1], r[0]))
+
+
+def lost_stretch_warning(stretches: list[tuple[int, int]], n_frames: int) -> str | None:
+    """The warning for the stretches ``untrusted_stretches`` found in a clip of
+    ``n_frames`` kept frames, or None without any."""
+    if not stretches:
+        return None
+    shown = ", ".join(f"{a}-{b}" for a, b in stretches[:3]) + (" and more" if len(stretches) > 3 else "")
+    total = sum(b - a + 1 for a, b in stretches)
+    a, b = stretches[0]
+    return (f"the classical tracker lost the object, or does not trust its mask, in frames {shown} ({total} of "
+            f"{n_frames} kept frames): those frames do not supervise the object. Where it is in view there, an "
+            f"{POSITIVE} on a frame inside (e.g. {POSITIVE} {(a + b) // 2} X0 Y0 X1 Y1, besides the first) restarts "
+            "the tracking from it (docs/preprocess.md, 'Several prompts')")
+
+
 def box_mask(box: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """[H, W] bool: the pixels whose centres lie in ``box`` (x0, y0, x1, y1, processed pixels)."""
     H, W = shape
