@@ -1717,6 +1717,14 @@ def test_a_long_stretch_without_a_trusted_object_mask_is_pointed_out_with_where_
     assert lost_stretch_warning([], 40) is None
 
 
+def test_the_preview_caption_says_which_frames_do_not_supervise_the_object():
+    from cogs.preprocess.preview import ORANGE, WHITE, caption
+
+    assert caption("000007", "  cam: colmap", None, 0.2) == ("frame 000007  cam: colmap", WHITE)  # no object
+    assert caption("000007", "", 0.84, 0.2) == ("frame 000007  obj 0.84", WHITE)
+    assert caption("000008", "", 0.1, 0.2) == ("frame 000008  obj 0.10 not trusted", ORANGE)
+
+
 def test_a_prompt_too_small_for_the_tracker_is_warned_about_naming_the_option_and_the_remedy():
     from cogs.preprocess.prompts import MIN_PROMPT_PIXELS, parse_prompts, small_prompt_warning
 

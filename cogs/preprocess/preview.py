@@ -3,8 +3,10 @@
 Per tile: the person mask (blue tint), MediaPipe's keypoints and skeleton (red/white), the
 fitted body's projected outline and skeleton (yellow), the object mask (green tint) and
 its fitted pose (magenta outline of the cuboid or ellipsoid proxy, red/green/blue axes), and the sparse scene
-points that project into the frame (cyan). The caption names the frame and whether its
-camera was registered by SfM or interpolated.
+points that project into the frame (cyan). The caption names the frame, whether its
+camera was registered by SfM or interpolated, and the object mask's confidence (orange and
+"not trusted" under the object branch's ``min_confidence``: that frame does not supervise
+the object).
 """
 
 from __future__ import annotations
@@ -20,6 +22,18 @@ RED = (255, 40, 40)
 WHITE = (255, 255, 255)
 MAGENTA = (255, 0, 255)
 CYAN = (0, 255, 255)
+ORANGE = (255, 150, 40)
+
+
+def caption(frame_id: str, camera: str, confidence: float | None, min_confidence: float) -> tuple[str, tuple[int, int, int]]:
+    """A tile's caption and its colour: the frame, the camera's status (``camera``: "" or
+    e.g. "  cam: colmap"), and the object mask's ``confidence`` when the scene has one."""
+    text, colour = f"frame {frame_id}{camera}", WHITE
+    if confidence is not None:
+        text += f"  obj {confidence:.2f}"
+        if confidence < min_confidence:
+            text, colour = text + " not trusted", ORANGE
+    return text, colour
 
 
 def _tint(img: np.ndarray, mask: np.ndarray, colour, alpha: float) -> None:
@@ -169,6 +183,10 @@ def contact_sheet(
             joints = joints.numpy()
         faces = model.canonical(shape).faces.numpy()
         skeleton = _main_skeleton(model)
+    from cogs.branches.object import ObjectConfig
+
+    confidence = scene.object.confidence if scene.has_object and scene.object is not None else None
+    min_confidence = ObjectConfig().min_confidence
     pts = scene.points_xyz
     if len(pts) > 1500:
         pts = pts[np.random.default_rng(0).choice(len(pts), 1500, replace=False)]
@@ -192,7 +210,8 @@ def contact_sheet(
         status = f"  cam: {camera_method}" if camera_method else ""
         if registered is not None and not registered[t]:
             status += " (interpolated)" if camera_method.startswith("colmap") else " (no match: held)"
-        cv2.putText(sheet, f"frame {scene.frame_ids[t]}{status}", (x0 + 4, y0 + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, WHITE, 1, cv2.LINE_AA)
+        text, colour = caption(scene.frame_ids[t], status, None if confidence is None else float(confidence[t]), min_confidence)
+        cv2.putText(sheet, text, (x0 + 4, y0 + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
     legend = [("person mask", BLUE), ("keypoints", RED), ("fitted body", YELLOW), ("object mask", GREEN), ("object pose", MAGENTA), ("points", CYAN)]
     x = 6
     y = sheet.shape[0] - 10
