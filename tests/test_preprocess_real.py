@@ -62,6 +62,8 @@ def test_real_clip_becomes_a_scene_that_cogs_check_accepts(real_scene):
     assert s.object.confidence is not None
     np.testing.assert_array_equal(s.object.confidence, tracker_conf)
     assert s.object.confidence[5] == 1.0  # the prompted frame
+    # The step's summary counts the frames that supervise the object (confidence 0.2 and up).
+    assert report.stats["objects"]["trusted_frames"] == int((tracker_conf >= 0.2).sum()) > 0
     # The initial trajectory's proxy and the frames turned with a fitted forearm are recorded.
     init = json.loads((cfg.out / "scene.json").read_text())["source"]["object_init"]
     assert init["shape"] in ("cuboid", "ellipsoid") and len(init["radii_m"]) == 3

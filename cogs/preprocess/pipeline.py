@@ -579,7 +579,11 @@ class _Runner:
             stats["cues"] = {c: cues.count(c) for c in sorted(set(cues)) if c}
         if len(self.positives) > 1:  # which prompt's pass each frame's mask came from
             stats["prompt_of_frame"] = sources
-        return {"masks": masks, "confidence": conf}, {"summary": f"object in {n}/{T} frames", "stats": stats}
+        from cogs.branches.object import ObjectConfig
+
+        trusted = int((conf >= ObjectConfig().min_confidence).sum())
+        stats["trusted_frames"] = trusted
+        return {"masks": masks, "confidence": conf}, {"summary": f"object in {n}/{T} frames, {trusted} trusted", "stats": stats}
 
     def _cameras(self, label, ui, images, person_masks, obj_masks, K):
         from cogs.preprocess import sfm as S
