@@ -227,22 +227,19 @@ def _frame_metrics(model, scene, test, human_masks, object_masks, protocol, note
     row per held-out frame ({"frame": its id, "full", "human_crop", "object_crop"}, a crop
     None where its mask is empty or the protocol has none)."""
     gt = scene.gt
-    full, hcrop, ocrop, h_iou, o_iou, rows = [], [], [], [], [], []
+    h_iou, o_iou, rows = [], [], []
     for t in track(test, label, show_progress):
         r = render_frame(model, scene, t, human_pose=poses.get(t) if poses else None)
         pred = _numpy(r.rgb)
         img = scene.images[t].astype(np.float32) / 255.0
         row = {"frame": scene.frame_ids[t], "full": image_metrics(pred, img, notes=notes), "human_crop": None, "object_crop": None}
-        full.append(row["full"])
         c = crop_to_mask(pred, img, human_masks[t])
         if c is not None:
             row["human_crop"] = image_metrics(*c, notes=notes)
-            hcrop.append(row["human_crop"])
         if object_masks is not None and protocol != "neuman":
             c = crop_to_mask(pred, img, object_masks[t])
             if c is not None:
                 row["object_crop"] = image_metrics(*c, notes=notes)
-                ocrop.append(row["object_crop"])
         rows.append(row)
         if gt is not None:
             h_iou.append(_branch_iou(r, "human", gt.human_masks[t]))
@@ -256,7 +253,8 @@ def _frame_metrics(model, scene, test, human_masks, object_masks, protocol, note
             for b in model.available():
                 rb = render_frame(model, scene, t, branches=(b,))
                 write_image(rdir / f"{fid}_{b}.png", _numpy(rb.rgb))
-    return full, hcrop, ocrop, h_iou, o_iou, rows
+    crops = {k: [row[k] for row in rows if row[k] is not None] for k in ("human_crop", "object_crop")}
+    return [row["full"] for row in rows], crops["human_crop"], crops["object_crop"], h_iou, o_iou, rows
 
 
 def _summarise_notes(notes: list[str]) -> list[str]:

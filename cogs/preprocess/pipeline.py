@@ -455,21 +455,20 @@ class _Runner:
                             " ".join(f"{v:g}" for v in followed[1:]), k)
                 track = follow_person(images, k, box, on_frame=lambda n: update(n), mask_threshold=self.cfg.person_threshold)
         on_hands: list[int] = []
-        bar = ui.task(f"{label} (hands)", int(track.detected.sum())) if track.detected.any() else None
-        track, dropped, whole = without_bodies_on_hands(images, track, on_frame=bar)
-        on_hands += dropped
-        if dropped:
-            log.warning("MediaPipe Pose laid a body on a hand in %d frame(s): %s%s (MediaPipe Hands found the hand there); %s",
-                        len(dropped), dropped[:10], "..." if len(dropped) > 10 else "",
-                        "it was following a hand, so none of its finds is kept" if whole else "the body there is interpolated")
-        if not track.detected.any():
-            track = self._body_without_face(images, size, update)
-            track, dropped, whole = without_bodies_on_hands(images, track)
+
+        def off_hands(track, finder: str):
+            bar = ui.task(f"{label} (hands)", int(track.detected.sum())) if track.detected.any() else None
+            track, dropped, whole = without_bodies_on_hands(images, track, on_frame=bar)
             if dropped:
-                log.warning("MediaPipe's landmark model too laid a body on a hand, in %d frame(s); none of its finds is kept"
-                            if whole else "MediaPipe's landmark model laid a body on a hand in %d frame(s); the body there "
-                            "is interpolated", len(dropped))
-            on_hands += dropped
+                log.warning("%s laid a body on a hand in %d frame(s): %s%s (MediaPipe Hands found the hand there); %s",
+                            finder, len(dropped), dropped[:10], "..." if len(dropped) > 10 else "",
+                            "it was following a hand, so none of its finds is kept" if whole else "the body there is interpolated")
+            on_hands.extend(dropped)
+            return track
+
+        track = off_hands(track, "MediaPipe Pose")
+        if not track.detected.any():
+            track = off_hands(self._body_without_face(images, size, update), "MediaPipe's landmark model")
         if self.cfg.refine_person_masks and self.cfg.sam2_checkpoint is None:
             import cv2
 
@@ -518,7 +517,10 @@ class _Runner:
         return track
 
     def _objects(self, label, ui, images, pe):
+        from cogs.branches.object import ObjectConfig
         from cogs.preprocess import objects as O
+
+        min_confidence = ObjectConfig().min_confidence  # frames under it do not supervise the object
 
         cfg = self.cfg
         T, H, W, _ = images.shape
@@ -565,9 +567,7 @@ class _Runner:
                     text = lookalike_prompt_warning(p, lookalike[p.frame])
                     if text:
                         log.warning("%s", text)
-                from cogs.branches.object import ObjectConfig
-
-                text = lost_stretch_warning(untrusted_stretches(conf, ObjectConfig().min_confidence), T)
+                text = lost_stretch_warning(untrusted_stretches(conf, min_confidence), T)
                 if text:
                     log.warning("%s", text)
         if not masks.any():
@@ -579,9 +579,7 @@ class _Runner:
             stats["cues"] = {c: cues.count(c) for c in sorted(set(cues)) if c}
         if len(self.positives) > 1:  # which prompt's pass each frame's mask came from
             stats["prompt_of_frame"] = sources
-        from cogs.branches.object import ObjectConfig
-
-        trusted = int((conf >= ObjectConfig().min_confidence).sum())
+        trusted = int((conf >= min_confidence).sum())
         stats["trusted_frames"] = trusted
         return {"masks": masks, "confidence": conf}, {"summary": f"object in {n}/{T} frames, {trusted} trusted", "stats": stats}
 

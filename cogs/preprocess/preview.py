@@ -185,7 +185,7 @@ def contact_sheet(
         skeleton = _main_skeleton(model)
     from cogs.branches.object import ObjectConfig
 
-    confidence = scene.object.confidence if scene.has_object and scene.object is not None else None
+    confidence = scene.object.confidence if scene.has_object else None
     min_confidence = ObjectConfig().min_confidence
     pts = scene.points_xyz
     if len(pts) > 1500:

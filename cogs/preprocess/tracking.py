@@ -893,12 +893,13 @@ class _Tracker:
             # colours are whatever is behind it, has little else to go by).
             st.carrier = holding_hand(self.kp2d, start, m0)
             st.carried = 0 if st.carrier is None else 2
-        # In a hand's grip (a prompt), or at a hand (where a pass into a gap starts: found
-        # again there), it is searched for where a hand has been (``HAND_PATH_REACH``).
-        reach = 0.5 * float(np.sqrt(m0.sum()))
-        st.into_gap = fill
-        st.held = st.carried >= 2 if not fill else any(
-            _visible(self.hands, start, h) and _distance_to(m0, self.hands[start, h, :2]) <= reach for h in (0, 1))
+            st.held = st.carried >= 2  # in a hand's grip: searched for where a hand has been (``HAND_PATH_REACH``)
+        else:
+            # A pass into a gap starts where the object was found again: at a hand, it is
+            # searched for where a hand has been, from its first frame on.
+            st.into_gap = True
+            reach = 0.5 * float(np.sqrt(m0.sum()))
+            st.held = any(_visible(self.hands, start, h) and _distance_to(m0, self.hands[start, h, :2]) <= reach for h in (0, 1))
 
         def undo(st: _State, t_end: int) -> tuple[_State, ColourModel]:
             """Drop a tentative hand find and what followed it, up to frame t_end."""
