@@ -438,6 +438,33 @@ def test_a_ball_kicked_off_a_shoe_of_its_colour_is_followed_not_the_shoe(monkeyp
     assert _iou(masks[5], gt[5]) < 0.2
 
 
+def test_grabcut_spreading_from_a_ball_onto_the_shoe_it_touches_is_cut_back():
+    """What GrabCut adds to a fitted ball on a foot, beyond a few pixels of the ball, is not
+    the ball (a white ball touching a white shoe); what it adds elsewhere stays, and without
+    keypoints nothing is cut."""
+    from cogs.preprocess.tracking import FOOT_MARGIN, _Tracker, foot_regions
+
+    images, gt, person, kp = _kicked_ball_clip()
+    t = 3
+    H, W = gt.shape[1:]
+    yy, xx = np.mgrid[:H, :W]
+    shoe = ((xx + 0.5 - 82) / 14) ** 2 + ((yy + 0.5 - 138) / 7) ** 2 <= 1
+    ball = (xx + 0.5 - 80) ** 2 + (yy + 0.5 - 120) ** 2 <= 10**2  # touching the shoe's top
+    bulge = (np.abs(xx - 66) <= 3) & (np.abs(yy - 118) <= 3)  # off the feet, beside the ball
+    feet = foot_regions(kp[t], (H, W))
+    assert (shoe & ~ball).sum() > 200 and (shoe & ~feet).sum() == 0 and not (bulge & feet).any()
+    seg = ball | shoe | bulge
+    tracker = _Tracker(images, gt[0], 0, person, kp, 0.5, 0.1, 0.5, 4)
+    out = tracker._off_the_feet(t, seg, ball)
+    assert (out & ball).sum() == ball.sum() and (out & bulge).sum() == bulge.sum()
+    margin = int(np.ceil(FOOT_MARGIN * 20)) + 1  # the ball's size is 20 px
+    dist = np.sqrt((xx + 0.5 - 80) ** 2 + (yy + 0.5 - 120) ** 2) - 10
+    assert not (out & shoe & (dist > margin)).any()
+    assert (shoe & ~ball & (dist > margin)).sum() > 150  # there was a shoe to cut
+    blind = _Tracker(images, gt[0], 0, person, None, 0.5, 0.1, 0.5, 4)
+    assert (blind._off_the_feet(t, seg, ball) == seg).all()
+
+
 def _held_object_clip(T=8, H=180, W=200, new_face_from=None, hidden=(), speed=9, decoy=None, pan=0, decoy_colour=(40, 170, 60),
                       decoy_from=0):
     """A textured background with a blue strip at the bottom, an arm (person) reaching in
