@@ -1299,6 +1299,19 @@ def test_an_object_held_in_front_of_the_body_grows_by_the_pixels_that_move_with_
     # Off the person (not held in front of the body) the test does not apply.
     grown, added = motion_grow(images, np.zeros_like(person), obj, parts, np.ones(T, bool))
     assert added == 0 and (grown == obj).all()
+    # Half the box from frame 1 on: as convex and as large as its neighbours, so taken for
+    # the whole box, unless the tracker saw it clearly (and twice as large) elsewhere.
+    half = boxes.copy()
+    half[1:] &= np.arange(W)[None, None, :] < (60 + 5 * np.arange(T))[1:, None, None] + 22
+    grown, added = motion_grow(images, person, half, parts, np.ones(T, bool))
+    assert added == 0
+    grown, added = motion_grow(images, person, half, parts, np.ones(T, bool), np.full(T, 0.5))
+    assert added == 0  # no frame seen clearly
+    grown, added = motion_grow(images, person, half, parts, np.ones(T, bool), np.r_[1.0, np.full(T - 1, 0.5)])
+    for t in range(2, T):
+        missed = boxes[t] & ~half[t]
+        assert (grown[t] & missed).sum() >= 0.6 * missed.sum()
+        assert (grown[t] & ~boxes[t]).sum() <= 0.05 * boxes[t].sum()
 
 
 def test_a_whole_ball_in_front_of_a_moving_leg_does_not_take_the_leg_in():

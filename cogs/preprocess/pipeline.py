@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 1
 PERSONS_VERSION = 5  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body; 5: bodies laid on a hand dropped)
 TRACKER_VERSION = 11  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into; 9: the static scene judged after a long loss too; 10: an object lost while carried searched for where a hand has been; 11: GrabCut's spread onto a foot dropped): bumping it redoes the object masks (and what reads them)
-MASKS_VERSION = 5  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off): bumping it redoes the masks step
+MASKS_VERSION = 6  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly): bumping it redoes the masks step
 BODY_VERSION = 4  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it): bumping it redoes the body step
 OBJECT_POSE_VERSION = 6  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
@@ -368,7 +368,7 @@ class _Runner:
             # The fitted body's silhouette as a second source of evidence for both masks; they
             # come out disjoint (one owner per pixel: the object wins).
             ms, _ = self._step(ui, 6, "masks", {"version": MASKS_VERSION, "model": cfg.body_model}, ["frames", "persons", "objects", "body"],
-                               lambda lb: self._masks(lb, ui, images, pe, obj_masks, bo, K))
+                               lambda lb: self._masks(lb, ui, images, pe, obj_masks, ob, bo, K))
             human_masks = ms["human"].astype(bool)
             if obj_masks is not None:
                 obj_masks = ms["object"].astype(bool)
@@ -683,7 +683,7 @@ class _Runner:
             "reprojection_error": fit.reprojection_error,
         }, {"summary": f"{cfg.body_model} on {T} frames, 2D error {stats['reprojection_error_mean']:.3f} of height", "stats": stats}
 
-    def _masks(self, label, ui, images, pe, obj_masks, bo, K):
+    def _masks(self, label, ui, images, pe, obj_masks, ob, bo, K):
         from cogs.body import load_body_model
         from cogs.preprocess.bodymasks import body_parts, refine_masks
 
@@ -698,7 +698,8 @@ class _Runner:
         human, obj, stats = refine_masks(images, pe["masks"].astype(bool), obj_masks, parts, pe["detected"].astype(bool),
                                          on_frame=lambda k: update(T + k),
                                          fingers=cfg.object_masks is None and cfg.sam2_checkpoint is None,
-                                         person_edges=cfg.sam2_checkpoint is None, fit_error=bo["reprojection_error"])
+                                         person_edges=cfg.sam2_checkpoint is None, fit_error=bo["reprojection_error"],
+                                         confidence=None if ob is None else ob["confidence"])
         arrays = {"human": human}
         if obj is not None:
             arrays["object"] = obj
