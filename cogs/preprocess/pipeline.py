@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 1
 PERSONS_VERSION = 5  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body; 5: bodies laid on a hand dropped)
 TRACKER_VERSION = 11  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into; 9: the static scene judged after a long loss too; 10: an object lost while carried searched for where a hand has been; 11: GrabCut's spread onto a foot dropped): bumping it redoes the object masks (and what reads them)
+SFM_VERSION = 2  # of the cameras step (2: COLMAP's two-view RANSAC seeded and its features extracted on one thread, so the same frames give the same cameras): bumping it redoes the cameras
 MASKS_VERSION = 6  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly): bumping it redoes the masks step
 BODY_VERSION = 4  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it): bumping it redoes the body step
 OBJECT_POSE_VERSION = 6  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
@@ -354,7 +355,7 @@ class _Runner:
             cam, cmeta = self._step(ui, 4, "cameras", {
                 "focal": focal, "sfm": cfg.sfm, "min_registered": cfg.min_registered,
                 "min_parallax": cfg.min_parallax, "dilate": cfg.mask_dilate_px, "matching": cfg.matching,
-                "exhaustive_max_frames": cfg.exhaustive_max_frames,
+                "exhaustive_max_frames": cfg.exhaustive_max_frames, "version": SFM_VERSION,
             }, ["frames", "persons", "objects"], lambda lb: self._cameras(lb, ui, images, pe["masks"].astype(bool), obj_masks, K))
 
             from cogs.preprocess.bodyfit import ADULT_STATURE_M

@@ -106,7 +106,10 @@ def run_colmap(
 ) -> tuple[dict[int, np.ndarray], np.ndarray, np.ndarray, dict]:
     """Incremental SfM on frames [T, H, W, 3] with feature masks [T, H, W] (True = usable).
 
-    ``progress(phase, done, total)`` is called as work advances. Returns (world_to_camera
+    ``progress(phase, done, total)`` is called as work advances. ``seed`` seeds the
+    two-view verification's RANSAC and the mapper, and features are extracted and bundles
+    adjusted on one thread: the same frames give the same reconstruction, to the last
+    digit. Returns (world_to_camera
     per registered frame index, points [P, 3], colours [P, 3] uint8, stats).
     """
     pycolmap = import_pycolmap()
@@ -135,6 +138,10 @@ def run_colmap(
     reader.mask_path = str(mask_dir)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.use_gpu = False
+    # One thread: with several, the same frames gave reconstructions of 1,901-3,089 points
+    # with poses apart by the scene's size (40 synthetic frames, two processes side by side;
+    # docs/experiments/2026-11-28-a-ball-on-a-shoe.md). Matching keeps its threads.
+    extraction.num_threads = 1
     chunk = max(1, min(8, T // 5 or 1))
     for s in range(0, T, chunk):
         if s > 0:
@@ -149,6 +156,7 @@ def run_colmap(
     verification = pycolmap.TwoViewGeometryOptions()
     verification.max_H_inlier_ratio = 0.99  # hand-held clips are nearly panoramic
     verification.detect_watermark = False
+    verification.ransac.random_seed = seed  # -1 (the default) seeds each run differently
     match_opts = pycolmap.FeatureMatchingOptions()
     match_opts.use_gpu = False
     if matching == "exhaustive":
@@ -167,6 +175,7 @@ def run_colmap(
     opts.ba_refine_extra_params = False
     opts.ignore_watermarks = True
     opts.random_seed = seed
+    opts.num_threads = 1  # bundle adjustment on several threads sums in another order each run
     opts.min_model_size = 3
     opts.mapper.init_min_tri_angle = 2.0
     opts.mapper.init_min_num_inliers = 50
