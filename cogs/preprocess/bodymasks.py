@@ -43,8 +43,8 @@ None of this runs in a frame whose tracked mask is already whole: convex (solidi
 least 0.95), at least 0.85 of the median size of the tracker's masks within 5 frames
 either side, and as large as where the tracker saw it clearly (the 5 nearest frames it
 found with confidence 0.8 and up: a carried box that turned keeps one face for frames on
-end, each as large as its neighbours). A juggled ball in front of the kicking leg moves with the leg, so the motion
-test alone takes the leg in. Colour does not separate the two: on the synthetic benchmark,
+end, each as large as its neighbours). A juggled ball in front of the kicking leg moves
+with the leg, so the motion test alone takes the leg in. Colour does not separate the two: on the synthetic benchmark,
 the faces that growth rightly adds are coloured like the person around the box.
 
 Without the body's constraint the same colour test hurts (on the benchmark, human IoU
@@ -85,15 +85,14 @@ COMPLETE_AREA = 0.85
 AREA_WINDOW = 5
 # ... and about as large (COMPLETE_AREA) as where the tracker saw it clearly: the median
 # area of the CLEAR_VIEWS nearest frames tracked with a confidence of at least
-# CLEAR_CONFIDENCE (the views the tracker's own usual area comes from). After a carried box
-# turns, the tracker keeps one face for frames on end, as convex and as large as its
-# neighbours (all of them that face) but a third to half of the box. The confidence itself
-# was tried instead (whole only at 0.5 and up): it let the kicking leg into a juggled ball
-# tracked at 0.46 and a nearly whole box grow the wrong way. CLEAR_CONFIDENCE is the
-# tracker's own (its usual area comes from such frames), CLEAR_VIEWS is AREA_WINDOW; checked
-# on the synthetic video benchmark (reference, 60 frames at 10 fps with seed 7, variants
-# 1-5) and on the six development clips: object IoU up on variants 2 and 4 (0.198 -> 0.220,
-# 0.689 -> 0.718), every other mask unchanged
+# CLEAR_CONFIDENCE (the tracker's own bar for the views its usual area comes from;
+# CLEAR_VIEWS is AREA_WINDOW). After a carried box turns, the tracker keeps one face for
+# frames on end, as convex and as large as its neighbours (all of them that face) but a
+# third to half of the box. The confidence itself was tried instead (whole only at 0.5 and
+# up): it let the kicking leg into a juggled ball tracked at 0.46 and a nearly whole box
+# grow the wrong way. Checked on the synthetic video benchmark (reference, 60 frames at
+# 10 fps with seed 7, variants 1-5) and on the six development clips: object IoU up on
+# variants 2 and 4 (0.198 -> 0.220, 0.689 -> 0.718), every other mask unchanged
 # (docs/experiments/2026-11-28-a-ball-on-a-shoe.md).
 CLEAR_CONFIDENCE = 0.8
 CLEAR_VIEWS = 5

@@ -109,8 +109,8 @@ def run_colmap(
     ``progress(phase, done, total)`` is called as work advances. ``seed`` seeds the
     two-view verification's RANSAC and the mapper, and features are extracted and bundles
     adjusted on one thread: the same frames give the same reconstruction, to the last
-    digit. Returns (world_to_camera
-    per registered frame index, points [P, 3], colours [P, 3] uint8, stats).
+    digit. Returns (world_to_camera per registered frame index, points [P, 3], colours
+    [P, 3] uint8, stats).
     """
     pycolmap = import_pycolmap()
     from PIL import Image
