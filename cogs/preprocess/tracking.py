@@ -890,11 +890,11 @@ class _Tracker:
         feet = self._feet_mask(t)
         if not (seg & feet).any():
             return seg
-        _, s = mask_stats(fitted)
+        c, s = mask_stats(fitted)
         r = max(1, int(round(FOOT_MARGIN * float(s.max()))))
         near = cv2.dilate(fitted.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
         out = seg & ~(feet & ~near)
-        return fill_holes(largest_component_near(out, tuple(mask_stats(fitted)[0]))) if out.any() else out
+        return fill_holes(largest_component_near(out, tuple(c))) if out.any() else out
 
     # -- passes -----------------------------------------------------------------------
 
