@@ -1669,6 +1669,38 @@ def test_a_hidden_carried_object_moves_with_the_hand_that_holds_it():
     np.testing.assert_array_equal(carry_positions(guess, has, np.full(T, -1), palms, forearms), guess)  # not carried
 
 
+def test_an_object_lost_for_good_while_carried_stays_in_the_hand():
+    # Seen resting (frame 0), then carried while the forearm turns it 20 degrees a frame, and
+    # out of view from frame 6 to the clip's end (a person turning away with it): there it
+    # goes on turning and moving with the hand, instead of freezing at its last sighting.
+    # Played backwards, the same clip is an object first seen carried: it was in that hand
+    # before, too.
+    from cogs.preprocess.objectfit import carry_in_hand, carry_positions
+
+    T = 12
+    u = np.arange(T) / (T - 1)
+    forearm = np.stack([_rot_about(np.array([0.3, 0.0, 1.0]) / np.hypot(0.3, 1.0), 20.0 * t) for t in range(T)])
+    palm = np.stack([0.4 * np.sin(np.pi * u), -0.5 * u, 1.0 + 0.3 * u], 1)
+    grasp_R, grasp_t = _rot(0, 30.0), np.array([0.0, 0.1, 0.05])
+    R_true = forearm @ grasp_R
+    t_true = palm + forearm @ grasp_t
+    forearms = np.stack([np.repeat(np.eye(3)[None], T, 0), forearm], 1)  # the right hand carries it
+    palms = np.stack([palm + [1.0, 1.0, 0.0], palm], 1)
+    has = np.arange(T) < 6
+    held = has & (np.arange(T) >= 1)
+    anchor = has & ~held
+    for order in (np.arange(T), np.arange(T)[::-1]):
+        h, hd, an, Ft, Pt = has[order], held[order], anchor[order], forearms[order], palms[order]
+        Rt, tt = R_true[order], t_true[order]
+        R_in = np.where(h[:, None, None], Rt, np.eye(3))
+        t_in = np.where(h[:, None], tt, tt[np.flatnonzero(h)[-1 if order[0] == 0 else 0]])  # frozen at the last sighting
+        R, by = carry_in_hand(R_in, h, hd, np.where(hd, 1, -1), Ft, an)
+        assert by[~an].tolist() == [1] * (T - 1) and by[an].tolist() == [-1]
+        np.testing.assert_allclose(R, Rt, atol=1e-9)
+        np.testing.assert_allclose(carry_positions(t_in, h, by, Pt, Ft), tt, atol=1e-9)
+        assert np.linalg.norm(t_in - tt, axis=1).max() > 0.2  # frozen, it would be far off
+
+
 def test_the_carrying_hand_is_the_one_the_object_stays_fixed_to():
     # The right hand carries the object on an arc, turning it; the free left hand comes
     # close to it and is the nearer one in most frames, yet moves on its own: the object

@@ -179,7 +179,12 @@ def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: 
     ``palms_world`` [T, 2, 3], the one the object stays fixed to; otherwise the one ``side``
     [T] finds at it most often; ``forearm_world`` [T, 2, 3, 3], left and right): R(t) = F(t) G with the
     grasp offset G = F(a)^T R(a) at the anchor a before it, or at the one after it, or the
-    two interpolated along the stretch where both exist (a regrasp in between). Stretches
+    two interpolated along the stretch where both exist (a regrasp in between). A stretch
+    that ends at the last masked frame goes on to the clip's end with its last grasp (an
+    object lost while carried is still in that hand; left at its last rotation, a box carried
+    out of view as the person turns away was 89-175 degrees off on the synthetic video
+    benchmark's variant 5, 19-58 with the hand: docs/experiments/2026-11-28-dev-clips-redrawn.md),
+    and likewise one that starts at the first masked frame back to the clip's start. Stretches
     without an anchor are left as they are: their offset, and which of a box's symmetric
     twins it is, would be the silhouettes' guess. The silhouettes cannot follow a held
     object turning fast (a person turning round with it, a forearm twisting it: partial
@@ -220,6 +225,14 @@ def carry_in_hand(R_world: np.ndarray, has: np.ndarray, held: np.ndarray, side: 
                 G = G0 if G0 is not None else G1
             R[t] = F[t] @ G
         carried[a : b + 1] = by
+        # Lost for good while carried (or first seen carried): it stays in that hand, with
+        # the grasp of the last (first) frame it was seen in, to the clip's end (start).
+        if b == idx[-1]:
+            R[b + 1 :] = F[b + 1 :] @ (F[b].T @ R[b])
+            carried[b + 1 :] = by
+        if a == idx[0]:
+            R[:a] = F[:a] @ (F[a].T @ R[a])
+            carried[:a] = by
     return R, carried
 
 
@@ -227,8 +240,9 @@ def carry_positions(t_world: np.ndarray, has: np.ndarray, carried_by: np.ndarray
                     forearm_world: np.ndarray) -> np.ndarray:
     """World positions [T, 3] with the frames of a carried stretch that have no mask moved
     with the carrying hand: t(t) = P(t) + F(t) o(t), the grasp offset o = F^T (t - P) taken at
-    the stretch's masked frames either side and interpolated (P: the palm of the carrying
-    side in ``palms_world`` [T, 2, 3], F: its forearm in ``forearm_world`` [T, 2, 3, 3]).
+    the stretch's masked frames either side and interpolated, or at the one sighting where
+    the stretch runs to the clip's start or end (P: the palm of the carrying side in
+    ``palms_world`` [T, 2, 3], F: its forearm in ``forearm_world`` [T, 2, 3, 3]).
     Elsewhere positions are unchanged. Interpolating the position itself through a gap lets
     an object that a person brings towards the camera lag behind the hand (on the 60-frame
     synthetic clip, 12 frames unmasked: 18-29 % of the depth off)."""
@@ -243,10 +257,12 @@ def carry_positions(t_world: np.ndarray, has: np.ndarray, carried_by: np.ndarray
         while b + 1 < T and not has[b + 1] and carried_by[b + 1] == carried_by[t]:
             b += 1
         p, n, s = t - 1, b + 1, int(carried_by[t])
-        # carry_in_hand begins and ends a stretch on masked frames of the same side
-        assert p >= 0 and n < T and has[p] and has[n] and carried_by[p] == s == carried_by[n]
         P, F = palms_world[:, s], forearm_world[:, s]
-        o_p, o_n = F[p].T @ (t_world[p] - P[p]), F[n].T @ (t_world[n] - P[n])
+        # carry_in_hand begins and ends a stretch on masked frames of the same side, or at
+        # the clip's start or end (the offset of the one sighting then holds throughout)
+        assert (p < 0 or (has[p] and carried_by[p] == s)) and (n >= T or (has[n] and carried_by[n] == s)) and (p >= 0 or n < T)
+        offset = {q: F[q].T @ (t_world[q] - P[q]) for q in (p, n) if 0 <= q < T}
+        o_p, o_n = offset.get(p, offset.get(n)), offset.get(n, offset.get(p))
         for k in range(t, b + 1):
             u = (k - p) / (n - p)
             out[k] = P[k] + F[k] @ ((1 - u) * o_p + u * o_n)

@@ -40,7 +40,7 @@ TRACKER_VERSION = 11  # of the classical object tracker (5: a prompt in a hand s
 SFM_VERSION = 2  # of the cameras step (2: COLMAP's two-view RANSAC seeded, its features extracted and bundles adjusted on one thread, so the same frames give the same cameras): bumping it redoes the cameras
 MASKS_VERSION = 7  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly; 7: a mask's specks left out of its solidity): bumping it redoes the masks step
 BODY_VERSION = 4  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it): bumping it redoes the body step
-OBJECT_POSE_VERSION = 6  # of the initial object trajectory (`objectfit.py`): bumping it redoes the object_pose step
+OBJECT_POSE_VERSION = 7  # of the initial object trajectory (`objectfit.py`; 7: an object lost for good while carried stays in the hand to the clip's end): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
 
