@@ -83,7 +83,8 @@ class Preprocess:
 
     sfm: Literal["auto", "colmap", "rotation"] = "auto"
     """Camera estimation: colmap, the rotation-only fallback, or auto (colmap, falling back
-    when too few frames register or the camera barely translates)."""
+    when too few frames register; when the camera barely translates, COLMAP's rotations or
+    the fallback's, whichever explains the static background better)."""
 
     matching: Literal["auto", "exhaustive", "sequential"] = "auto"
     """SfM feature matching: every pair, neighbouring frames only, or auto (exhaustive up to

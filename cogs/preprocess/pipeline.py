@@ -620,7 +620,8 @@ class _Runner:
                 # Without parallax COLMAP's rotations can jump between two frames (a 0.75
                 # degree jump on the basketball clip: its background smeared in training, 4 dB
                 # lower). The homography chain is the other guess; the rotations under which
-                # the background agrees better across frames are kept.
+                # the background agrees better across frames are kept (with --sfm auto).
+            if method == "colmap-rotation" and cfg.sfm == "auto":
                 phases.update(features=T + 1, rotations=2 * T)
                 w2c_h, reg_h, st_h = S.rotation_only(images, static, K, progress=prog)
                 res = {"colmap-rotation": S.background_residual(images, static, K, w2c),
@@ -628,7 +629,9 @@ class _Runner:
                 stats["rotation"], stats["background_residual"] = st_h, res
                 if res["rotation"] < res["colmap-rotation"]:
                     w2c, reg, method = w2c_h, reg_h, "rotation"
-            elif cfg.sfm == "colmap":
+                    stats["note"] = (f"the homography chain explains the background better than COLMAP's rotations: "
+                                     f"{res['colmap-rotation']:.2f} -> {res['rotation']:.2f} grey levels")
+            elif method is None and cfg.sfm == "colmap":
                 raise UserError(f"structure from motion posed {reg.sum()}/{T} frames with {len(xyz)} points; try --sfm auto (rotation-only fallback)")
         if method is None:
             phases.update(features=0, rotations=T)
@@ -637,7 +640,8 @@ class _Runner:
             method, xyz, rgb = "rotation", np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
         update(3 * T, method, 3 * T)
         n_reg = int(reg.sum())
-        meta = {"method": method, "summary": f"{method}: {n_reg}/{T} frames posed, {len(xyz)} points", "stats": stats}
+        summary = f"{method}: {n_reg}/{T} frames posed, {len(xyz)} points" + (f" ({stats['note']})" if "note" in stats else "")
+        meta = {"method": method, "summary": summary, "stats": stats}
         return {"world_to_camera": w2c, "registered": reg, "points_xyz": xyz, "points_rgb": rgb, "static": static}, meta
 
     def _body(self, label, ui, images, pe, cam, cmeta, K, stature_m: float):
