@@ -40,7 +40,7 @@ TRACKER_VERSION = 11  # of the classical object tracker (5: a prompt in a hand s
 SFM_VERSION = 3  # of the cameras step (2: COLMAP's two-view RANSAC seeded, its features extracted and bundles adjusted on one thread, so the same frames give the same cameras; 3: without parallax, COLMAP's rotations or the homography chain, whichever explains the background better): bumping it redoes the cameras
 MASKS_VERSION = 7  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly; 7: a mask's specks left out of its solidity): bumping it redoes the masks step
 BODY_VERSION = 4  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it): bumping it redoes the body step
-OBJECT_POSE_VERSION = 7  # of the initial object trajectory (`objectfit.py`; 7: an object lost for good while carried stays in the hand to the clip's end): bumping it redoes the object_pose step
+OBJECT_POSE_VERSION = 7  # of the initial object trajectory (`objectfit.py`; 7: an object lost for good while carried stays in the hand to the clip's end, one first seen carried was in it from the start): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
 
@@ -617,11 +617,11 @@ class _Runner:
                 # and fix the centre (a tripod-like clip).
                 w2c[:, :3, 3] = 0.0  # every camera at the world origin
                 method, xyz, rgb = "colmap-rotation", np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
-                # Without parallax COLMAP's rotations can jump between two frames (a 0.75
-                # degree jump on the basketball clip: its background smeared in training, 4 dB
-                # lower). The homography chain is the other guess; the rotations under which
-                # the background agrees better across frames are kept (with --sfm auto).
             if method == "colmap-rotation" and cfg.sfm == "auto":
+                # Without parallax COLMAP's rotations can jump between two frames (0.75 degrees
+                # on the basketball clip: its background smeared in training, 3.8 dB lower). The
+                # homography chain is the other guess; the rotations under which the background
+                # agrees better across frames are kept.
                 phases.update(features=T + 1, rotations=2 * T)
                 w2c_h, reg_h, st_h = S.rotation_only(images, static, K, progress=prog)
                 res = {"colmap-rotation": S.background_residual(images, static, K, w2c),
