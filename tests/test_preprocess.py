@@ -1080,7 +1080,7 @@ def test_background_residual_prefers_the_rotations_without_a_jump():
     jump = w2c.copy()
     jump[T // 2 :, :3, :3] = np.einsum("ij,tjk->tik", _rot(1, 0.75), w2c[T // 2 :, :3, :3])
     chain, ok, _ = S.rotation_only(images, static, K)
-    truth, jumped, found = (S.background_residual(images, static, K, w) for w in (w2c, jump, chain))
+    truth, jumped, found = S.background_residuals(images, static, K, [w2c, jump, chain])
     assert ok.all() and truth < 0.7 * jumped, (truth, jumped)
     assert found < 1.1 * truth + 0.5, (found, truth)
 

@@ -624,8 +624,7 @@ class _Runner:
                 # agrees better across frames are kept.
                 phases.update(features=T + 1, rotations=2 * T)
                 w2c_h, reg_h, st_h = S.rotation_only(images, static, K, progress=prog)
-                res = {"colmap-rotation": S.background_residual(images, static, K, w2c),
-                       "rotation": S.background_residual(images, static, K, w2c_h)}
+                res = dict(zip(("colmap-rotation", "rotation"), S.background_residuals(images, static, K, [w2c, w2c_h])))
                 stats["rotation"], stats["background_residual"] = st_h, res
                 if res["rotation"] < res["colmap-rotation"]:
                     w2c, reg, method = w2c_h, reg_h, "rotation"

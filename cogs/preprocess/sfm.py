@@ -12,7 +12,7 @@ triangulation angles allowed), watermark detection off.
 
 **Rotation-only fallback**, used when most frames fail to register or the reconstruction
 has no usable parallax (a tripod-like clip) and its rotations explain the background worse
-(``background_residual``): per consecutive-frame homography of the
+(``background_residuals``): per consecutive-frame homography of the
 background (RANSAC), the rotation ``K^-1 H K`` (projected to SO(3) with the Kabsch fit on
 the inlier bearings), chained from frame 0. The camera centre is fixed; the scene's depth
 and scale then come from the ground plane and the body's metric size (see
@@ -328,14 +328,15 @@ def rotation_only(images: np.ndarray, static_masks: np.ndarray, K: np.ndarray, p
     return w2c, ok, stats
 
 
-def background_residual(images: np.ndarray, static_masks: np.ndarray, K: np.ndarray, w2c: np.ndarray,
-                        offsets: tuple[int, ...] = (1, 8, 32), side: int = 256) -> float:
-    """How well rotation-only cameras explain the static background: the mean grey-level
-    difference between each frame and the frames ``offsets`` before it warped onto it by the
-    pure-rotation homography ``K R K^-1`` of the two cameras in ``w2c`` [T, 4, 4] (their
-    centres are ignored), over pixels that are ``static_masks`` [T, H, W] in both. Computed
-    at most ``side`` pixels on the longer side. The next frame catches a jump, the farther
-    ones a drift (the homography chain, fitted pair by pair, drifts; COLMAP's rotations
+def background_residuals(images: np.ndarray, static_masks: np.ndarray, K: np.ndarray, tracks: list[np.ndarray],
+                         offsets: tuple[int, ...] = (1, 8, 32), side: int = 256) -> list[float]:
+    """How well each of ``tracks`` (rotation-only cameras, world_to_camera [T, 4, 4]; their
+    centres are ignored) explains the static background: the mean grey-level difference
+    between each frame and the frames ``offsets`` before it warped onto it by the
+    pure-rotation homography ``K R K^-1`` of the two cameras, over pixels that are
+    ``static_masks`` [T, H, W] in both (inf where no pixel is), at most ``side`` pixels on
+    the longer side; the frames are downscaled once for all tracks. The next frame catches a
+    jump, the farther ones a drift (the homography chain, fitted pair by pair, drifts; COLMAP's rotations
     jump): on the basketball clip, COLMAP's rotations with a 0.75 degree jump leave 3.33 /
     9.73 / 22.11 grey levels at offsets 1 / 8 / 32, the chain 2.87 / 6.04 / 9.18."""
     import cv2
@@ -347,18 +348,22 @@ def background_residual(images: np.ndarray, static_masks: np.ndarray, K: np.ndar
     Kinv = np.linalg.inv(Ks)
     small = [cv2.resize(images[t], (w, h), interpolation=cv2.INTER_AREA) for t in range(T)]  # uint8: 570 frames, 110 MB
     stat = [cv2.resize(static_masks[t].astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) for t in range(T)]
-    total, count = 0.0, 0
-    for k in offsets:
-        for t in range(k, T):
-            R = w2c[t, :3, :3] @ w2c[t - k, :3, :3].T  # camera t-k -> camera t
-            Hm = Ks @ R @ Kinv
-            warped = cv2.warpPerspective(small[t - k], Hm, (w, h), flags=cv2.INTER_LINEAR).astype(np.float32)
-            valid = (cv2.warpPerspective(stat[t - k], Hm, (w, h), flags=cv2.INTER_NEAREST) > 0) & (stat[t] > 0)
-            n = int(valid.sum())
-            if n:
-                total += float(np.abs(warped - small[t].astype(np.float32)).mean(-1)[valid].sum())
-                count += n
-    return total / count if count else float("inf")
+
+    def residual(w2c: np.ndarray) -> float:
+        total, count = 0.0, 0
+        for k in offsets:
+            for t in range(k, T):
+                R = w2c[t, :3, :3] @ w2c[t - k, :3, :3].T  # camera t-k -> camera t
+                Hm = Ks @ R @ Kinv
+                warped = cv2.warpPerspective(small[t - k], Hm, (w, h), flags=cv2.INTER_LINEAR).astype(np.float32)
+                valid = (cv2.warpPerspective(stat[t - k], Hm, (w, h), flags=cv2.INTER_NEAREST) > 0) & (stat[t] > 0)
+                n = int(valid.sum())
+                if n:
+                    total += float(np.abs(warped - small[t].astype(np.float32)).mean(-1)[valid].sum())
+                    count += n
+        return total / count if count else float("inf")
+
+    return [residual(w2c) for w2c in tracks]
 
 
 def proxy_points(
