@@ -272,13 +272,13 @@ def _clear_areas(areas: np.ndarray, confidence: np.ndarray | None, t: int) -> np
     return areas[clear[np.argsort(np.abs(clear - t), kind="stable")[:CLEAR_VIEWS]]]
 
 
-def _complete(mask: np.ndarray, nearby_areas: np.ndarray, clear_areas: np.ndarray | None = None) -> bool:
+def _complete(mask: np.ndarray, nearby_areas: np.ndarray, clear_areas: np.ndarray) -> bool:
     """Whether a tracked mask is the whole object: convex (specks aside), about as large as
     the tracker's masks of the frames around it (the median of the non-empty ones), and as
-    large as where it was clearly seen (the median of ``clear_areas``, when given)."""
+    large as where it was clearly seen (the median of ``clear_areas``, if any)."""
     nearby = nearby_areas[nearby_areas > 0]
     least = float(np.median(nearby))
-    if clear_areas is not None and len(clear_areas):
+    if len(clear_areas):
         least = max(least, float(np.median(clear_areas)))
     return solidity(_without_specks(mask)) >= COMPLETE_SOLIDITY and mask.sum() >= COMPLETE_AREA * least
 
