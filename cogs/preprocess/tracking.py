@@ -94,6 +94,19 @@ _SCENE_OFFSETS = (1, 2, 4, 8, 12)
 # clip's frames left on the floor it is 0.64-0.90.
 UNCLEAR_SHARE = 0.5
 UNCLEAR_CONFIDENCE = 0.1
+# A frame the tracker found with less confidence than this is doubtful, and a run of them
+# is tracked again from the clear frame at its far end (``cross_check``); where that pass
+# disagrees (mask IoU below ``CROSS_AGREE``), its mask replaces the doubtful one if it is
+# clear itself, and the frame's confidence falls to ``UNCLEAR_CONFIDENCE`` otherwise.
+# 0.8 is the confidence the tracker already treats as a clear view (``_Tracker._update``);
+# 0.5 is ``combine_passes``'s test of two passes on the same object. Neither was swept.
+# Measured on the six development clips and the synthetic video benchmark at eight
+# settings (docs/experiments/2026-11-28-tracks-from-both-sides.md): the juggled ball's
+# frames on the shoe (47-48) and the basketball's partial balls (19-22) take the second
+# pass's whole ball; a ball with a piece of its shadow (basketball 16) and a ball the
+# second pass cut short (juggle 38) are left out of supervision; nothing else changes.
+CLEAR_CONFIDENCE = 0.8
+CROSS_AGREE = 0.5
 # A mask with at least this share of its pixels on a forearm (``forearm_regions``, hands
 # left out), in its frame and a neighbouring one, is the arm that holds the object rather
 # than the object, which is held beyond the wrist: its confidence is capped at
@@ -1286,6 +1299,7 @@ def propagate_masks(
     conf = np.zeros(T)
     found = [""] * T
     origin = [frames[0]] * T
+    way = np.where(np.arange(T) > frames[-1], 1, -1)  # the direction each frame was tracked in
     tracker = _Tracker(images, None, None, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames,
                        prompts=prompts, negatives=negatives)
     for k in frames:
@@ -1302,30 +1316,32 @@ def propagate_masks(
     if on_frame:
         on_frame(len(frames))
 
-    def fill_gaps(m, c, cu, start: int, direction: int, end: int) -> None:
+    def fill_gaps(m, c, cu, start: int, direction: int, end: int, w: np.ndarray) -> None:
         # Back into each gap from where the object was found again (it reappeared with a
         # face or at a place the pass through the gap could not connect to).
         for t in range(start + direction, end, direction):
             if m[t].any() and not m[t - direction].any():
+                empty = ~m.reshape(T, -1).any(1)
                 tracker.run(t, -direction, m, c, cu, fill=True)
+                w[empty & m.reshape(T, -1).any(1)] = -direction  # tracked back from t
 
     # Between two prompts: a pass from each towards the other, each reaching the other's
     # frame; the frames between take one or the other (``combine_passes``).
     for a, b in zip(frames[:-1], frames[1:]):
         passes = []
         for k, direction, stop in ((a, +1, b + 1), (b, -1, a - 1)):
-            m, c, cu = np.zeros((T, H, W), bool), np.zeros(T), [""] * T
+            m, c, cu, w = np.zeros((T, H, W), bool), np.zeros(T), [""] * T, np.full(T, direction)
             m[k], c[k], cu[k] = prompts[k], 1.0, "prompt"
             tracker.use(k)
             tracker.run(k, direction, m, c, cu, stop=stop, on_frame=tick)
-            fill_gaps(m, c, cu, k, direction, stop)
-            passes.append((m, c, cu))
-        (ma, ca, cua), (mb, cb, cub) = passes
+            fill_gaps(m, c, cu, k, direction, stop, w)
+            passes.append((m, c, cu, w))
+        (ma, ca, cua, wa), (mb, cb, cub, wb) = passes
         switch = combine_passes(ma[a : b + 1], mb[a : b + 1]) + a
         log.debug("prompts %d and %d: frames from %d on take the second's pass", a, b, switch)
         for t in range(a + 1, b):
-            src = (ma, ca, cua, a) if t < switch else (mb, cb, cub, b)
-            masks[t], conf[t], found[t], origin[t] = src[0][t], src[1][t], src[2][t], src[3]
+            src = (ma, ca, cua, a, wa) if t < switch else (mb, cb, cub, b, wb)
+            masks[t], conf[t], found[t], origin[t], way[t] = src[0][t], src[1][t], src[2][t], src[3], src[4][t]
         done[0] -= b - a + 1  # two passes cover these frames (and reach the prompts): the bar counts each once
         if on_frame:
             on_frame(min(done[0], T))
@@ -1335,9 +1351,10 @@ def propagate_masks(
         tracker.run(k, direction, masks, conf, found, on_frame=tick)
     for k, direction in ((frames[-1], +1), (frames[0], -1)):
         tracker.use(k)
-        fill_gaps(masks, conf, found, k, direction, T if direction > 0 else -1)
+        fill_gaps(masks, conf, found, k, direction, T if direction > 0 else -1, way)
     for t in list(range(frames[-1] + 1, T)) + list(range(frames[0])):
         origin[t] = frames[-1] if t > frames[-1] else frames[0]
+    cross_check(tracker, masks, conf, found, origin, way)
     if kp2d is not None:
         # The arm that holds the object is not the object, whatever cue found it there.
         for t in np.flatnonzero(carried_on(on_forearm(masks, kp2d), masks, found)):
@@ -1349,6 +1366,57 @@ def propagate_masks(
     if sources is not None:
         sources[:] = origin
     return masks, conf
+
+
+def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found: list, origin: list, way: np.ndarray) -> list[int]:
+    """Track each run of doubtful frames again from its other side; where the two tracks
+    disagree, keep the second's mask if it is clear, else mark the frame unclear -> the
+    frames changed (``masks``, ``conf`` and ``found`` are updated in place).
+
+    A doubtful frame was found with confidence below ``CLEAR_CONFIDENCE`` (not a prompt).
+    A run of them, tracked forwards (``way`` +1, ``origin`` the prompt it came from), ends
+    at a frame found clearly: a pass from that frame back through the run (with the same
+    prompt's appearance) tracks the run from the side its own pass never saw; likewise
+    for runs tracked backwards. Where both passes find something and their masks overlap
+    by less than ``CROSS_AGREE`` (IoU), one of them left the object. The second pass's
+    mask is kept where it found the object clearly (a ball kicked up faster than the
+    flow: the forward track stays on the shoe, the pass back from the next clear view
+    follows the ball); otherwise the frame's confidence falls to ``UNCLEAR_CONFIDENCE``.
+    A frame the second pass loses says nothing either way and is left as it is.
+    """
+    T = len(masks)
+    doubtful = (conf > 0) & (conf < CLEAR_CONFIDENCE) & np.array([f != "prompt" for f in found])
+    changed = []
+    t = 0
+    while t < T:
+        if not doubtful[t]:
+            t += 1
+            continue
+        a = t
+        while t + 1 < T and doubtful[t + 1] and way[t + 1] == way[a] and origin[t + 1] == origin[a]:
+            t += 1
+        b, t = t, t + 1
+        d = int(way[a])
+        anchor = b + 1 if d > 0 else a - 1  # the clear frame at the run's far end
+        if not (0 <= anchor < T) or conf[anchor] < CLEAR_CONFIDENCE or found[anchor] == "prompt":
+            # No clear view there, or a prompt: between two prompts, the pass from each
+            # is already weighed against the other's (``combine_passes``).
+            continue
+        stop = a - 1 if d > 0 else b + 1
+        m, c, cu = np.zeros_like(masks), np.zeros(T), [""] * T
+        m[anchor], c[anchor], cu[anchor] = masks[anchor], conf[anchor], found[anchor]
+        tracker.use(origin[anchor])
+        tracker.run(anchor, -d, m, c, cu, stop=stop)
+        for u in range(a, b + 1):
+            if m[u].any() and iou(m[u], masks[u]) < CROSS_AGREE:
+                if c[u] >= CLEAR_CONFIDENCE:  # the second pass sees it clearly: its mask
+                    masks[u], conf[u], found[u] = m[u], c[u], cu[u]
+                else:
+                    conf[u] = min(conf[u], UNCLEAR_CONFIDENCE)
+                changed.append(u)
+    if changed:
+        log.debug("object frames whose tracks from both sides disagree: %s", changed)
+    return changed
 
 
 def combine_passes(forward: np.ndarray, backward: np.ndarray, agree: float = 0.5) -> int:
