@@ -254,6 +254,31 @@ def test_object_masks_follow_a_moving_object_from_one_box():
     assert (conf > 0).all()
 
 
+def test_a_doubtful_run_is_tracked_again_from_the_clear_view_after_it():
+    # A forward track left the disc for a look-alike patch of background on frames 5-6
+    # (found with little confidence) and found the disc again, clearly, on frame 7. The
+    # pass back from frame 7 follows the disc: its clear masks replace the wrong ones. A
+    # doubtful run on the disc itself (2-3) agrees with that pass and is left alone, and
+    # so is a doubtful run with no clear view after it (the clip's last frame).
+    from cogs.preprocess.tracking import _Tracker, cross_check
+
+    images, gt, person = _object_clip(T=10)
+    T = len(images)
+    wrong = np.zeros_like(gt[0])
+    wrong[10:30, 120:140] = True
+    masks, conf = gt.copy(), np.ones(T)
+    found = ["prompt"] + ["flow"] * (T - 1)
+    masks[5:7] = wrong
+    conf[[2, 3, 5, 6, 9]] = 0.5
+    masks[9] = wrong
+    tracker = _Tracker(images, None, None, (person * 255).astype(np.uint8), None, 0.5, 0.1, 0.5, 4, prompts={0: gt[0]})
+    changed = cross_check(tracker, masks, conf, found, [0] * T, np.ones(T, int))
+    assert changed == [5, 6]
+    assert all(_iou(masks[t], gt[t]) > 0.8 and conf[t] >= 0.8 for t in (5, 6)), [_iou(masks[t], gt[t]) for t in (5, 6)]
+    assert (masks[[2, 3]] == gt[[2, 3]]).all() and (conf[[2, 3]] == 0.5).all()
+    assert (masks[9] == wrong).all() and conf[9] == 0.5
+
+
 def test_object_is_reported_lost_while_hidden():
     images, gt, person = _object_clip()
     images[5][gt[5]] = images[4][~gt[4]].mean(0).astype(np.uint8)  # frame 5: disc painted over

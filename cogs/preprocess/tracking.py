@@ -1381,8 +1381,10 @@ def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found:
     by less than ``CROSS_AGREE`` (IoU), one of them left the object. The second pass's
     mask is kept where it found the object clearly (a ball kicked up faster than the
     flow: the forward track stays on the shoe, the pass back from the next clear view
-    follows the ball); otherwise the frame's confidence falls to ``UNCLEAR_CONFIDENCE``.
-    A frame the second pass loses says nothing either way and is left as it is.
+    follows the ball). Where it found something less clearly but more surely than the
+    first pass did, the frame's confidence falls to ``UNCLEAR_CONFIDENCE``. A frame the
+    second pass loses, or finds less surely than the first (a pass that starts at a
+    clear view can still fail at once), is left as it is.
     """
     T = len(masks)
     doubtful = (conf > 0) & (conf < CLEAR_CONFIDENCE) & np.array([f != "prompt" for f in found])
@@ -1411,8 +1413,10 @@ def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found:
             if m[u].any() and iou(m[u], masks[u]) < CROSS_AGREE:
                 if c[u] >= CLEAR_CONFIDENCE:  # the second pass sees it clearly: its mask
                     masks[u], conf[u], found[u] = m[u], c[u], cu[u]
-                else:
+                elif c[u] > conf[u]:  # contradicted by a surer find: unclear
                     conf[u] = min(conf[u], UNCLEAR_CONFIDENCE)
+                else:  # a less sure find says little against it
+                    continue
                 changed.append(u)
     if changed:
         log.debug("object frames whose tracks from both sides disagree: %s", changed)
