@@ -103,8 +103,8 @@ UNCLEAR_CONFIDENCE = 0.1
 # Measured on the six development clips and the synthetic video benchmark at eight
 # settings (docs/experiments/2026-11-28-tracks-from-both-sides.md): the juggled ball's
 # frames on the shoe (47-48) and the basketball's partial balls (19-22) take the second
-# pass's whole ball; a ball with a piece of its shadow (basketball 16) and a ball the
-# second pass cut short (juggle 38) are left out of supervision; nothing else changes.
+# pass's whole ball; a ball with a strip of its shadow (basketball 16) is left out of
+# supervision; nothing else changes.
 CLEAR_CONFIDENCE = 0.8
 CROSS_AGREE = 0.5
 # A mask with at least this share of its pixels on a forearm (``forearm_regions``, hands
@@ -1389,6 +1389,7 @@ def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found:
     T = len(masks)
     doubtful = (conf > 0) & (conf < CLEAR_CONFIDENCE) & np.array([f != "prompt" for f in found])
     changed = []
+    m = None  # the second passes' masks: one array for all runs, cleared after each
     t = 0
     while t < T:
         if not doubtful[t]:
@@ -1405,7 +1406,8 @@ def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found:
             # is already weighed against the other's (``combine_passes``).
             continue
         stop = a - 1 if d > 0 else b + 1
-        m, c, cu = np.zeros_like(masks), np.zeros(T), [""] * T
+        m = np.zeros_like(masks) if m is None else m
+        c, cu = np.zeros(T), [""] * T
         m[anchor], c[anchor], cu[anchor] = masks[anchor], conf[anchor], found[anchor]
         tracker.use(origin[anchor])
         tracker.run(anchor, -d, m, c, cu, stop=stop)
@@ -1418,6 +1420,7 @@ def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found:
                 else:  # a less sure find says little against it
                     continue
                 changed.append(u)
+        m[a : b + 1], m[anchor] = False, False
     if changed:
         log.debug("object frames whose tracks from both sides disagree: %s", changed)
     return changed
