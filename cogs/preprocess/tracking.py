@@ -1321,9 +1321,9 @@ def propagate_masks(
         # face or at a place the pass through the gap could not connect to).
         for t in range(start + direction, end, direction):
             if m[t].any() and not m[t - direction].any():
-                empty = ~m.reshape(T, -1).any(1)
+                unfound = [not x for x in cu]  # a frame the pass finds gets its cue
                 tracker.run(t, -direction, m, c, cu, fill=True)
-                w[empty & m.reshape(T, -1).any(1)] = -direction  # tracked back from t
+                w[[u for u in range(T) if unfound[u] and cu[u]]] = -direction  # tracked back from t
 
     # Between two prompts: a pass from each towards the other, each reaching the other's
     # frame; the frames between take one or the other (``combine_passes``).
