@@ -80,6 +80,7 @@ log = logging.getLogger(__name__)
 _HAND_LANDMARKS = ((13, 15, 17, 19, 21), (14, 16, 18, 20, 22))
 # ... and of each foot: ankle, heel, toe (foot index).
 _FOOT_LANDMARKS = ((27, 29, 31), (28, 30, 32))
+_KNEES = (25, 26)  # MediaPipe's left and right knees, for the feet above
 # Frames back along a pass whose static scene a frame is compared with: near ones see the
 # same view, far ones see what the person and the object covered in the near ones.
 _SCENE_OFFSETS = (1, 2, 4, 8, 12)
@@ -134,6 +135,13 @@ HAND_PATH_REACH = 1.5
 # unseen real clip: only the juggle clip changes
 # (docs/experiments/2026-11-28-a-ball-on-a-shoe.md).
 FOOT_MARGIN = 0.1
+# A foot seen end-on (pointing at or away from the camera) spans at least this share of
+# the knee-to-ankle length in ``foot_regions`` (an adult's foot is about 0.6 of it): heel
+# and toe 6 px apart under a 27 px shin left a juggled ball with the raised shoe it sat on.
+# Tried at 0.35, 0.45, 0.55 and 0.65 on the six development clips and the synthetic
+# video at eight settings: only the juggle clip changes at any of them
+# (docs/experiments/2026-11-28-feet-seen-end-on.md).
+FOOT_SHIN_SHARE = 0.45
 
 # -- motion cues ----------------------------------------------------------------------
 
@@ -430,18 +438,25 @@ def carried_on(arm: np.ndarray, masks: np.ndarray, cues: list[str], agree: float
 def foot_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float = 0.5) -> np.ndarray:
     """Pixels the visible feet (shoes) may cover -> [H, W] bool, from one frame's MediaPipe
     keypoints [33, 3]: the triangle of each foot's ankle, heel and toe points grown by
-    0.4 x the foot's length (heel to toe), which takes in the shoe's width and sole.
-    Chosen on the juggle and basketball clips with the synthetic video benchmark at two
-    settings unchanged (0.25 left the juggle track on the shoes;
+    0.4 x the foot's length, which takes in the shoe's width and sole. Chosen on the
+    juggle and basketball clips with the synthetic video benchmark at two settings
+    unchanged (0.25 left the juggle track on the shoes;
     docs/experiments/2026-11-27-tracker-feet-and-pieces.md).
+
+    The length is heel to toe, but at least ``FOOT_SHIN_SHARE`` of the knee-to-ankle
+    length where the knee is visible: a foot pointing at or away from the camera shows
+    heel and toe a few pixels apart while its shoe still covers its full width and sole.
     """
     H, W = shape
     out = np.zeros((H, W), bool)
-    for idx in _FOOT_LANDMARKS:
+    for idx, knee in zip(_FOOT_LANDMARKS, _KNEES):
         k = kp[list(idx)]
         if not np.isfinite(k).all() or k[:, 2].min() < min_visibility:
             continue
         length = float(np.linalg.norm(k[2, :2] - k[1, :2]))
+        knee = kp[knee]
+        if np.isfinite(knee).all() and knee[2] >= min_visibility:
+            length = max(length, FOOT_SHIN_SHARE * float(np.linalg.norm(knee[:2] - k[0, :2])))
         if length < 1.0:
             continue
         out |= _filled_and_grown(k[:, :2], 0.4 * length, (H, W))
