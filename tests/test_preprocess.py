@@ -490,6 +490,29 @@ def test_grabcut_spreading_from_a_ball_onto_the_shoe_it_touches_is_cut_back():
     assert (blind._off_the_feet(t, seg, ball) == seg).all()
 
 
+def test_a_foot_seen_end_on_covers_its_shoe_sized_from_the_shin():
+    """A foot pointing at the camera shows heel and toe 3 px apart: its region still takes
+    in the shoe (sized from the knee-to-ankle length), unless the knee is not visible; a
+    foot seen side-on, longer than that, is sized by heel and toe as before."""
+    from cogs.preprocess.tracking import FOOT_SHIN_SHARE, foot_regions
+
+    H, W = 120, 120
+    yy, xx = np.mgrid[:H, :W]
+    kp = np.full((33, 3), np.nan)
+    kp[25] = (60, 40, 1.0)  # left knee, 40 px above the ankle
+    kp[[27, 29, 31]] = [(60, 80, 1.0), (60, 84, 1.0), (61, 87, 1.0)]  # ankle, heel, toe
+    shoe = ((xx + 0.5 - 60) / 6) ** 2 + ((yy + 0.5 - 87) / 4) ** 2 <= 1  # the shoe's width and sole
+    region = foot_regions(kp, (H, W))
+    assert (shoe & ~region).sum() == 0
+    assert region.sum() < 4 * (FOOT_SHIN_SHARE * 40) ** 2  # a foot's size, not the leg's
+    unseen_knee = kp.copy()
+    unseen_knee[25, 2] = 0.2
+    assert (shoe & ~foot_regions(unseen_knee, (H, W))).sum() > 0.5 * shoe.sum()
+    side_on = kp.copy()
+    side_on[31] = (85, 86, 1.0)  # toe 25 px from the heel: longer than the shin's share
+    assert (foot_regions(side_on, (H, W)) == foot_regions(np.where(np.arange(33)[:, None] == 25, np.nan, side_on), (H, W))).all()
+
+
 def _held_object_clip(T=8, H=180, W=200, new_face_from=None, hidden=(), speed=9, decoy=None, pan=0, decoy_colour=(40, 170, 60),
                       decoy_from=0):
     """A textured background with a blue strip at the bottom, an arm (person) reaching in
