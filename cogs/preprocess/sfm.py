@@ -109,9 +109,13 @@ def run_colmap(
 
     ``progress(phase, done, total)`` is called as work advances. ``seed`` seeds the
     two-view verification's RANSAC and the mapper, and features are extracted and bundles
-    adjusted on one thread: the same frames give the same reconstruction, to the last
-    digit. Returns (world_to_camera per registered frame index, points [P, 3], colours
-    [P, 3] uint8, stats).
+    adjusted on one thread. Matching is not always the same from run to run: in 3 of 35
+    runs on the same frames of the guitar clip, COLMAP's CPU matcher (through faiss) gave
+    other matches for 2-6 of its 4,371 image pairs, and in two of them another
+    reconstruction (1,019 and 987 points instead of 1,037). Its brute-force matcher took
+    24x as long on 960-pixel frames (docs/experiments/2026-11-28-feet-seen-end-on.md).
+    Returns (world_to_camera per registered frame index, points [P, 3], colours [P, 3]
+    uint8, stats).
     """
     pycolmap = import_pycolmap()
     from PIL import Image
@@ -141,7 +145,8 @@ def run_colmap(
     extraction.use_gpu = False
     # One thread: with several, the same frames gave reconstructions of 1,901-3,089 points
     # with poses apart by the scene's size (40 synthetic frames, two processes side by side;
-    # docs/experiments/2026-11-28-a-ball-on-a-shoe.md). Matching keeps its threads.
+    # docs/experiments/2026-11-28-a-ball-on-a-shoe.md). Matching keeps its threads (see
+    # the docstring for how it varies).
     extraction.num_threads = 1
     chunk = max(1, min(8, T // 5 or 1))
     for s in range(0, T, chunk):

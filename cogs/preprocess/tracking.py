@@ -137,9 +137,10 @@ HAND_PATH_REACH = 1.5
 FOOT_MARGIN = 0.1
 # A foot seen end-on (pointing at or away from the camera) spans at least this share of
 # the knee-to-ankle length in ``foot_regions`` (an adult's foot is about 0.6 of it): heel
-# and toe 6 px apart under a 27 px shin left a juggled ball with the raised shoe it sat on.
-# Tried at 0.35, 0.45, 0.55 and 0.65 on the six development clips and the synthetic
-# video at eight settings: only the juggle clip changes at any of them
+# and toe 6.5 px apart under a 36 px shin left a juggled ball with the shoe it sat on.
+# Tried at 0.35 and 0.45 on the six development clips and the synthetic video at eight
+# settings (only the juggle clip changes), 0.55 and 0.65 on the juggle clip; 0.45 took the
+# shoe off the most frames for the fewest made worse
 # (docs/experiments/2026-11-28-feet-seen-end-on.md).
 FOOT_SHIN_SHARE = 0.45
 
