@@ -450,12 +450,12 @@ def foot_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float =
     """
     H, W = shape
     out = np.zeros((H, W), bool)
-    for idx, knee in zip(_FOOT_LANDMARKS, _KNEES):
+    for idx, knee_idx in zip(_FOOT_LANDMARKS, _KNEES):
         k = kp[list(idx)]
         if not np.isfinite(k).all() or k[:, 2].min() < min_visibility:
             continue
         length = float(np.linalg.norm(k[2, :2] - k[1, :2]))
-        knee = kp[knee]
+        knee = kp[knee_idx]
         if np.isfinite(knee).all() and knee[2] >= min_visibility:
             length = max(length, FOOT_SHIN_SHARE * float(np.linalg.norm(knee[:2] - k[0, :2])))
         if length < 1.0:
