@@ -1086,6 +1086,57 @@ def test_colmap_gives_the_same_cameras_for_the_same_frames(tmp_path):
     assert all(np.array_equal(p0[t], p1[t]) for t in p0)
 
 
+def _sift_like(n, rng):
+    """``n`` SIFT-like uint8 descriptors: non-negative unit vectors scaled by 512, clipped."""
+    d = np.abs(rng.normal(size=(n, 128)))
+    return np.clip(np.round(512 * d / np.linalg.norm(d, axis=1, keepdims=True)), 0, 255).astype(np.uint8)
+
+
+def test_descriptors_match_as_colmaps_brute_force_rules_say_exactly():
+    """Nearest neighbour by angle under 0.7 rad, under 0.8x the second nearest's, both ways:
+    checked against a float64 loop on descriptors where half of one image's are noisy
+    copies of the other's; the result does not depend on the order the images come in."""
+    from cogs.preprocess.sfm import match_descriptors
+
+    rng = np.random.default_rng(3)
+    d1 = _sift_like(300, rng)
+    # Ten near-twins in image 1 of descriptors that image 2 has: each twin's nearest is the
+    # same descriptor there, which cannot tell the two apart (only the cross check drops them).
+    d1[290:] = np.clip(d1[:10].astype(int) + rng.integers(-2, 3, (10, 128)), 0, 255)
+    d2 = np.concatenate([np.clip(d1[:150].astype(int) + rng.integers(-12, 13, (150, 128)), 0, 255).astype(np.uint8),
+                         _sift_like(200, rng)])[rng.permutation(350)]
+    got = match_descriptors(d1, d2)
+
+    ang = np.arccos(np.clip(d1.astype(np.float64) @ d2.astype(np.float64).T / 512.0**2, -1, 1))
+
+    def one_way(a):
+        out = {}
+        for i, row in enumerate(a):
+            j, k = np.argsort(row, kind="stable")[:2]
+            if row[j] <= 0.7 and row[j] < 0.8 * row[k]:
+                out[i] = j
+        return out
+
+    fwd, back = one_way(ang), one_way(ang.T)
+    want = {(i, j) for i, j in fwd.items() if back.get(j) == i}
+    assert 100 <= len(want) <= 150  # the noisy copies but the twins' originals
+    twins = lambda pairs: sum(i < 10 or i >= 290 for i in pairs)  # noqa: E731
+    assert twins(fwd) - twins(i for i, _ in want) >= 10  # one way they match; both ways, not
+    assert set(map(tuple, got.tolist())) == want and got.dtype == np.uint32
+    assert set(map(tuple, match_descriptors(d2, d1)[:, ::-1].tolist())) == want
+    assert match_descriptors(d1, d2[:0]).shape == (0, 2)
+
+
+def test_sequential_pairs_are_the_overlap_and_its_powers_of_two():
+    from cogs.preprocess.sfm import image_pairs
+
+    assert image_pairs(4) == [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
+    pairs = image_pairs(40, "sequential", overlap=3)
+    assert len(set(pairs)) == len(pairs) and all(a < b < 40 for a, b in pairs)
+    assert {b - a for a, b in pairs if a == 0} == {1, 2, 3, 4}  # 1..3, and 2^0, 2^1, 2^2
+    assert {b - a for a, b in pairs if a == 38} == {1}
+
+
 def test_rotation_only_fallback_recovers_a_panning_camera():
     import cv2
 

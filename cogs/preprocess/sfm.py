@@ -95,6 +95,53 @@ def import_pycolmap():
     return pycolmap
 
 
+def image_pairs(n: int, matching: str = "exhaustive", overlap: int = 10) -> list[tuple[int, int]]:
+    """Frame pairs (a, b), a < b, to match among ``n`` frames: every pair ("exhaustive"), or
+    each frame with the ``overlap`` after it and those 2, 4, 8 ... 2^(overlap-1) after it
+    ("sequential", COLMAP's sequential pairing with quadratic overlap)."""
+    if matching == "exhaustive":
+        return [(a, b) for a in range(n) for b in range(a + 1, n)]
+    out = []
+    for a in range(n):
+        ahead = sorted({a + 1 + i for i in range(overlap)} | {a + (1 << i) for i in range(overlap)})
+        out += [(a, b) for b in ahead if b < n]
+    return out
+
+
+def match_descriptors(d1: np.ndarray, d2: np.ndarray, max_ratio: float = 0.8, max_distance: float = 0.7) -> np.ndarray:
+    """COLMAP's SIFT matching of uint8 descriptors [N, 128] and [M, 128] -> [K, 2] uint32
+    index pairs: each descriptor's nearest neighbour by angle (descriptors are unit vectors
+    scaled by 512) under ``max_distance`` radians and under ``max_ratio`` x the second
+    nearest's angle, kept where the two are each other's nearest.
+
+    Exact, so the same in every run: dot products of uint8 vectors are integers under
+    2^24, which float32 holds exactly in any order of summation (COLMAP's own CPU matcher
+    goes through faiss and gave other matches now and then). The same matches as COLMAP's
+    brute-force matcher on all 4,371 pairs of the guitar clip; matching and verifying 91
+    pairs of 3,800 features (960-pixel frames) takes 6.3 s against faiss's 1.9 s and
+    COLMAP's brute force's 48.6 s.
+    """
+    if len(d1) == 0 or len(d2) == 0:
+        return np.zeros((0, 2), np.uint32)
+    dots = d1.astype(np.float32) @ d2.astype(np.float32).T  # [N, M]
+    rows, cols = np.arange(len(d1)), np.arange(len(d2))
+    best_r, best_c = dots.argmax(1), dots.argmax(0)
+    top_r, top_c = dots[rows, best_r], dots[best_c, cols]
+    dots[rows, best_r] = -np.inf
+    second_r = dots.max(1)
+    dots[rows, best_r] = top_r
+    dots[best_c, cols] = -np.inf
+    second_c = dots.max(0)
+
+    def passes(top, second):
+        angle = np.arccos(np.clip(top / 512.0**2, -1.0, 1.0))
+        return (angle <= max_distance) & (angle < max_ratio * np.arccos(np.clip(second / 512.0**2, -1.0, 1.0)))
+
+    ok_r, ok_c = passes(top_r, second_r), passes(top_c, second_c)
+    keep = ok_r & ok_c[best_r] & (best_c[best_r] == rows)
+    return np.stack([rows[keep], best_r[keep]], 1).astype(np.uint32)
+
+
 def run_colmap(
     images: np.ndarray,
     static_masks: np.ndarray,
@@ -109,13 +156,10 @@ def run_colmap(
 
     ``progress(phase, done, total)`` is called as work advances. ``seed`` seeds the
     two-view verification's RANSAC and the mapper, and features are extracted and bundles
-    adjusted on one thread. Matching is not always the same from run to run: in 3 of 35
-    runs on the same frames of the guitar clip, COLMAP's CPU matcher (through faiss) gave
-    other matches for 2-6 of its 4,371 image pairs, and in two of them another
-    reconstruction (1,019 and 987 points instead of 1,037). Its brute-force matcher took
-    24x as long on 960-pixel frames (docs/experiments/2026-11-28-feet-seen-end-on.md).
-    Returns (world_to_camera per registered frame index, points [P, 3], colours [P, 3]
-    uint8, stats).
+    adjusted on one thread; features are matched exactly (``match_descriptors``) on the
+    pairs ``image_pairs`` names, and COLMAP verifies them: the same frames give the same
+    reconstruction, to the last digit. Returns (world_to_camera per registered frame index,
+    points [P, 3], colours [P, 3] uint8, stats).
     """
     pycolmap = import_pycolmap()
     from PIL import Image
@@ -145,8 +189,7 @@ def run_colmap(
     extraction.use_gpu = False
     # One thread: with several, the same frames gave reconstructions of 1,901-3,089 points
     # with poses apart by the scene's size (40 synthetic frames, two processes side by side;
-    # docs/experiments/2026-11-28-a-ball-on-a-shoe.md). Matching keeps its threads (see
-    # the docstring for how it varies).
+    # docs/experiments/2026-11-28-a-ball-on-a-shoe.md).
     extraction.num_threads = 1
     chunk = max(1, min(8, T // 5 or 1))
     for s in range(0, T, chunk):
@@ -163,15 +206,23 @@ def run_colmap(
     verification.max_H_inlier_ratio = 0.99  # hand-held clips are nearly panoramic
     verification.detect_watermark = False
     verification.ransac.random_seed = seed  # -1 (the default) seeds each run differently
-    match_opts = pycolmap.FeatureMatchingOptions()
-    match_opts.use_gpu = False
-    if matching == "exhaustive":
-        pycolmap.match_exhaustive(db, matching_options=match_opts, verification_options=verification, device=pycolmap.Device.cpu)
-    else:
-        pairing = pycolmap.SequentialPairingOptions()
-        pairing.overlap = overlap
-        pairing.quadratic_overlap = True
-        pycolmap.match_sequential(db, matching_options=match_opts, pairing_options=pairing, verification_options=verification, device=pycolmap.Device.cpu)
+    # Matching is ours, COLMAP's verification: its CPU matcher (through faiss) gave other
+    # matches for a few pairs in 3 of 35 runs of the same frames, and twice another
+    # reconstruction (docs/experiments/2026-11-28-feet-seen-end-on.md).
+    database = pycolmap.Database.open(str(db))
+    try:
+        ids = {im.name: im.image_id for im in database.read_all_images()}
+        descriptors = [np.asarray(database.read_descriptors(ids[n]).data) for n in names]
+        pairs = image_pairs(T, matching, overlap)
+        for k, (a, b) in enumerate(pairs):
+            database.write_matches(ids[names[a]], ids[names[b]], match_descriptors(descriptors[a], descriptors[b]))
+            if progress and (k + 1) % 50 == 0:
+                progress("matching", k + 1, len(pairs))
+    finally:
+        database.close()
+    pairs_file = work_dir / "pairs.txt"
+    pairs_file.write_text("".join(f"{names[a]} {names[b]}\n" for a, b in pairs))
+    pycolmap.verify_matches(db, pairs_file, options=verification)
     if progress:
         progress("matching", 1, 1)
 
