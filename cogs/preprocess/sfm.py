@@ -209,13 +209,28 @@ def run_colmap(
     # Matching is ours, COLMAP's verification: its CPU matcher (through faiss) gave other
     # matches for a few pairs in 3 of 35 runs of the same frames, and twice another
     # reconstruction (docs/experiments/2026-11-28-feet-seen-end-on.md).
+    # Descriptors are read as the pairs need them (pairs come in order of their first frame),
+    # and only a frame's and its near neighbours' are kept: 570 frames of 8,192 would be
+    # 600 MB.
     database = pycolmap.Database.open(str(db))
     try:
         ids = {im.name: im.image_id for im in database.read_all_images()}
-        descriptors = [np.asarray(database.read_descriptors(ids[n]).data) for n in names]
         pairs = image_pairs(T, matching, overlap)
+        kept: dict[int, np.ndarray] = {}
+
+        def descriptors(i: int, keep: bool) -> np.ndarray:
+            d = kept.get(i)
+            if d is None:
+                d = np.asarray(database.read_descriptors(ids[names[i]]).data)
+                if keep:
+                    kept[i] = d
+            return d
+
         for k, (a, b) in enumerate(pairs):
-            database.write_matches(ids[names[a]], ids[names[b]], match_descriptors(descriptors[a], descriptors[b]))
+            for i in [i for i in kept if i < a]:
+                del kept[i]
+            near = matching == "exhaustive" or b - a <= overlap
+            database.write_matches(ids[names[a]], ids[names[b]], match_descriptors(descriptors(a, True), descriptors(b, near)))
             if progress and (k + 1) % 50 == 0:
                 progress("matching", k + 1, len(pairs))
     finally:
