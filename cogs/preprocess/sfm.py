@@ -122,7 +122,7 @@ def _two_best(dots):
     best_c, top_c, second_c = np.zeros(M, np.int64), np.full(M, -np.inf, np.float32), np.full(M, -np.inf, np.float32)
     for i in range(N):
         row = dots[i]
-        for j in range(M):  # branch-free: the compiler vectorises it
+        for j in range(M):  # branch-free, so that it can be vectorised
             v, t = row[j], top_c[j]
             up = v > t
             second_c[j] = max(second_c[j], min(t, v))
