@@ -1128,25 +1128,31 @@ def test_descriptors_match_as_colmaps_brute_force_rules_say_exactly():
 
 
 def test_the_two_best_each_way_are_numpys_with_ties_to_the_first_index():
-    """``_two_best`` (one compiled pass) against numpy on small integer products, where ties
-    are common: the first index of the largest, a tie making the second equal to it, and
-    -inf for the second of a single entry."""
-    from cogs.preprocess.sfm import _two_best
+    """``_fold_two_best`` (one compiled pass, fed a product a block of rows at a time) against
+    numpy on small integer products, where ties are common: the first index of the largest,
+    a tie making the second equal to it, and -inf for the second of a single entry; the
+    same whether the rows come at once or in blocks."""
+    from cogs.preprocess.sfm import _fold_two_best
 
     rng = np.random.default_rng(5)
     for shape in [(40, 33), (1, 7), (6, 1), (200, 180)]:
         dots = rng.integers(0, 6, shape).astype(np.float32)
-        best_r, top_r, second_r, best_c, top_c, second_c = _two_best(dots)
-        for axis, best, top, second in ((1, best_r, top_r, second_r), (0, best_c, top_c, second_c)):
-            want = dots.argmax(axis)
-            assert np.array_equal(best, want) and np.array_equal(top, dots.max(axis))
-            rest = dots.copy()
-            if axis == 1:
-                rest[np.arange(len(want)), want] = -np.inf
-            else:
-                rest[want, np.arange(len(want))] = -np.inf
-            assert np.array_equal(second, rest.max(axis))
-        assert (second_r == top_r).any() and (second_c == top_c).any() or 1 in shape  # ties were there
+        for rows in (shape[0], 7):
+            N, M = shape
+            got = (np.zeros(N, np.int64), np.empty(N, np.float32), np.empty(N, np.float32),
+                   np.zeros(M, np.int64), np.full(M, -np.inf, np.float32), np.full(M, -np.inf, np.float32))
+            for i0 in range(0, N, rows):
+                _fold_two_best(dots[i0 : i0 + rows], i0, *got)
+            for axis, (best, top, second) in ((1, got[:3]), (0, got[3:])):
+                want = dots.argmax(axis)
+                assert np.array_equal(best, want) and np.array_equal(top, dots.max(axis))
+                rest = dots.copy()
+                if axis == 1:
+                    rest[np.arange(len(want)), want] = -np.inf
+                else:
+                    rest[want, np.arange(len(want))] = -np.inf
+                assert np.array_equal(second, rest.max(axis))
+            assert (got[2] == got[1]).any() and (got[5] == got[4]).any() or 1 in shape  # ties were there
 
 
 def test_sequential_pairs_are_the_overlap_and_its_powers_of_two():
