@@ -1315,6 +1315,36 @@ def test_body_fit_reprojects_synthetic_keypoints(body_model):
     assert err.max() < 0.15, err
 
 
+def test_body_fit_keeps_to_the_ground_only_where_a_foot_is_seen(body_model):
+    # A clip cut at the knees: MediaPipe guesses the feet (visibility 0.1) and the ground
+    # placed through guessed feet can lie anywhere, here at knee height. The legs must
+    # still follow the knees and the 3D landmarks, not fold up to keep the feet above it.
+    from cogs.geometry.camera import look_at
+    from cogs.preprocess import bodyfit as B
+
+    m = body_model
+    T = 3
+    pose = torch.zeros(T, m.n_bones, 3)
+    transl = torch.tensor([[0.0, 0.0, 0.95]] * T)
+    K = S.intrinsics(160, 240, 220.0)
+    w2c = np.stack([look_at([0.3 * t, -4.0, 1.2], [0, 0, 0.9]) for t in range(T)])
+    kp2d, kp3d, joints = _synthetic_keypoints(m, pose, transl, w2c, K)
+    kp2d[:, [27, 28, 29, 30, 31, 32], 2] = 0.1
+    shape = m.default_shape.numpy().astype(np.float64)
+    R_w, root_w = B.camera_to_world_init(*B.init_camera_space(kp2d, kp3d, K, 1.0), w2c)
+    knee_high = (np.array([0.0, 0.0, 1.0]), -0.45)
+    ankles = [m.bone_index("foot.L"), m.bone_index("foot.R")]
+    fit = B.fit_body(m, kp2d, kp3d, K, w2c, shape, R_w, root_w, ground=knee_high, iterations=150)
+    err = np.linalg.norm(fit.joints_world[:, ankles] - joints[:, ankles], axis=-1)
+    assert err.max() < 0.1, err
+    # Where the feet are seen, the same ground holds them: no sole below it.
+    kp2d[:, [27, 28, 31, 32], 2] = 1.0
+    fit = B.fit_body(m, kp2d, kp3d, K, w2c, shape, R_w, root_w, ground=knee_high, iterations=150)
+    feet = [m.bone_index(b) for b in B.FOOT_BONES]
+    sole = B.foot_sole_offsets(m, shape)
+    assert (fit.joints_world[:, feet, 2] - sole).min() > 0.45 - 0.05
+
+
 def test_body_shape_is_an_adult_of_the_given_stature_and_the_landmarks_scale_to_it(body_model):
     # MediaPipe's metric landmarks cannot tell a person's size: the body is an adult as tall
     # as asked, and the landmarks' own scale (here 0.7 of the body's) is measured against it.
