@@ -14,13 +14,14 @@ def _compiled():
     warmup()
 
 
-def _render(scene, backend, *, grad=False, background=None, seed=1):
-    params = [t.clone().requires_grad_(grad) for t in scene.gaussians()]
-    out = rasterize(*params, *scene.camera(), backend=backend, background=background)
+def _render(scene, backend, *, grad=False, background=None, seed=1, dtype=torch.float32):
+    params = [t.clone().to(dtype).requires_grad_(grad) for t in scene.gaussians()]
+    camera = [x.to(dtype) if torch.is_tensor(x) and x.is_floating_point() else x for x in scene.camera()]
+    out = rasterize(*params, *camera, backend=backend, background=None if background is None else background.to(dtype))
     if not grad:
         return out, None
     g = torch.Generator().manual_seed(seed)
-    loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum()
+    loss = sum((o * torch.randn(o.shape, generator=g).to(dtype)).sum()
                for o in (out.colors, out.alpha, out.depth))
     loss.backward()
     return out, [p.grad for p in params]
@@ -69,10 +70,17 @@ def test_cpu_gradients_match_torch_reference(n, width, height, channels):
     background = torch.rand(channels, generator=torch.Generator().manual_seed(2))
     ref, g_ref = _render(scene, "torch", grad=True, background=background)
     cpu, g_cpu = _render(scene, "cpu", grad=True, background=background)
-    for name, a, b in zip(["means", "quats", "scales", "opacities", "colors"], g_cpu, g_ref):
+    # Both backends compute in float32; the reference's own float64 run is the truth. A
+    # gradient made of terms that cancel (a lone Gaussian's opacity: -0.0065 from terms
+    # near 1) is only as exact as float32 makes it, so the CPU's error may reach a few
+    # times the float32 reference's own (on an AVX-512 CPU: 2.0e-3 against its 7.3e-4).
+    _, g_exact = _render(scene, "torch", grad=True, background=background, dtype=torch.float64)
+    for name, a, b, e in zip(["means", "quats", "scales", "opacities", "colors"], g_cpu, g_ref, g_exact):
         assert torch.isfinite(a).all(), name
-        rel = ((a - b).norm() / b.norm().clamp_min(1e-12)).item()
-        assert rel <= 1e-3, f"{name}: relative gradient error {rel:.2e}"
+        e = e.float()
+        own = ((b - e).norm() / e.norm().clamp_min(1e-12)).item()
+        rel = ((a - e).norm() / e.norm().clamp_min(1e-12)).item()
+        assert rel <= max(1e-3, 4 * own), f"{name}: relative gradient error {rel:.2e} (float32 reference: {own:.2e})"
     rel = ((cpu.means2d.grad - ref.means2d.grad).norm() / ref.means2d.grad.norm()).item()
     assert rel <= 1e-3, f"means2d: relative gradient error {rel:.2e}"
 
