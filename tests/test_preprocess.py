@@ -1190,6 +1190,31 @@ def test_rotation_only_fallback_recovers_a_panning_camera():
         assert err < 0.3, (t, err)
 
 
+def test_a_camera_that_only_turns_is_not_mapped(tmp_path):
+    # The mapper needs an initial pair with parallax; a camera that only turns has none,
+    # and COLMAP would try every pair before giving up (6 minutes on a 100-frame clip).
+    import cv2
+
+    H, W = 240, 320
+    K = S.intrinsics(W, H, 300.0)
+    turn = _rot(1, 3.0) @ _rot(0, 1.0)
+    H_turn = K @ turn @ np.linalg.inv(K)
+    # The same turn seen with the camera also moving 5 % of the way to a wall.
+    n, t = np.array([0.0, 0.0, 1.0]), np.array([0.05, 0.0, 0.0])
+    H_wall = K @ (turn + np.outer(t, n)) @ np.linalg.inv(K)
+    assert S.rotations_only([("PLANAR_OR_PANORAMIC", 400, H_turn), ("PANORAMIC", 300, 2.0 * H_turn)], K)
+    assert not S.rotations_only([("PLANAR_OR_PANORAMIC", 400, H_turn), ("PLANAR_OR_PANORAMIC", 400, H_wall)], K)
+    assert not S.rotations_only([("PLANAR_OR_PANORAMIC", 400, H_turn), ("CALIBRATED", 400, np.eye(3))], K)
+    # Pairs too weak to start the mapper do not count.
+    assert S.rotations_only([("PLANAR_OR_PANORAMIC", 400, H_turn), ("CALIBRATED", 20, np.eye(3))], K)
+    # End to end: a camera panning over a distant texture.
+    pano = _texture(3 * H, 3 * W, seed=2)
+    Kp = S.intrinsics(3 * W, 3 * H, 300.0)
+    images = np.stack([cv2.warpPerspective(pano, K @ _rot(1, 2.0 * k) @ _rot(0, 0.7 * k) @ np.linalg.inv(Kp), (W, H)) for k in range(5)])
+    poses, xyz, _, stats = S.run_colmap(images, np.ones(images.shape[:3], bool), K, tmp_path / "colmap")
+    assert poses == {} and len(xyz) == 0 and stats["mapping"].startswith("skipped"), stats
+
+
 def test_background_residual_prefers_the_rotations_without_a_jump():
     # A camera panning over a distant texture; the same track with a 0.75 degree jump
     # halfway (what COLMAP gave the basketball clip without parallax) explains the
