@@ -325,10 +325,11 @@ def run_colmap(
     if progress:
         progress("matching", 1, 1)
     if rotations_only(_verified_geometries(pycolmap, db), K):
-        log.info("every frame pair is a turn of the camera on the spot: no structure from motion to find")
+        log.info("no frame pair can start structure from motion (each is a turn of the camera on the spot, or matched "
+                 "too weakly): the mapper is not run")
         if progress:
             progress("mapping", T, T)
-        return {}, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"n_models": 0, "mapping": "skipped: every pair a pure rotation"}
+        return {}, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"n_models": 0, "mapping": "skipped: no pair with parallax"}
 
     opts = pycolmap.IncrementalPipelineOptions()
     opts.ba_refine_focal_length = False
