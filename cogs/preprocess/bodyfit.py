@@ -358,6 +358,7 @@ def fit_body(
         g_d = float(ground[1])
         seen = np.nan_to_num(kp2d[:, FOOT_LANDMARKS, 2]).max(1) >= FOOT_SEEN
         g_w = torch.tensor(seen & det, dtype=dt)  # [T] frames the ground terms hold on
+        n_seen = g_w.sum().clamp_min(1.0)
 
     def full_pose():
         pose = torch.zeros(T, J, 3, dtype=dt)
@@ -394,7 +395,6 @@ def fit_body(
         loss = loss + w.pose_prior * (body_aa**2).sum(-1).mean()
         if ground is not None and stage >= 1:
             h = joints[:, foot_idx] @ g_n + g_d - sole  # [T, 4] sole heights above ground
-            n_seen = g_w.sum().clamp_min(1.0)
             loss = loss + w.ground_penetration * ((torch.relu(-h) ** 2).mean(1) * g_w).sum() / n_seen
             lowest = -0.02 * torch.logsumexp(-h / 0.02, dim=1)  # soft minimum over the feet
             loss = loss + w.ground_contact * (lowest**2 * g_w).sum() / n_seen
