@@ -10,7 +10,9 @@ small neighbourhood.
 
 Used by the object tracker (``tracking.py``): static-scene pixels are never object, and
 "moving but not the person" is object evidence that needs no colour model (an object that
-turns a face never seen before).
+turns a face never seen before). The same camera motion, applied to keypoints instead of
+colours (``StaticScene.point_motion``), tells which parts of a prompt's mask hold still
+with the room while the rest moves (a blanket inside the box drawn around a guitar).
 """
 
 from __future__ import annotations
@@ -96,9 +98,9 @@ class StaticScene:
     show there (``residual``).
 
     ``images`` [T, H, W, 3] uint8; ``person_probs`` [T, H, W] uint8 (MediaPipe's soft
-    mask); ``matches(u, t, static_u)`` -> keypoints of frame u on the pixels ``static_u``
-    [H, W] bool and their matches in frame t, ([N, 2], [N, 2]) pixels
-    (``tracking.FeatureBank.static_matches``).
+    mask); ``matches(u, t, static_u[, most])`` -> keypoints of frame u on the pixels
+    ``static_u`` [H, W] bool (at most ``most`` of them) and their matches in frame t, ([N,
+    2], [N, 2]) pixels (``tracking.FeatureBank.static_matches``).
     """
 
     def __init__(self, images: np.ndarray, person_probs: np.ndarray, matches, tol: int = 2):
@@ -156,3 +158,35 @@ class StaticScene:
             np.minimum(out, np.where(valid, r, np.inf), out=out)
         out[~np.isfinite(out)] = np.nan
         return out
+
+    def point_motion(self, t: int, mask: np.ndarray, refs: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """How far frame t's keypoints on ``mask`` [H, W] bool move off the static scene
+        in the frames ``refs`` -> (xy [N, 2] pixels of frame t, [N, len(refs)] float64
+        pixels: the distance between where each keypoint matched in that frame and where
+        the camera's motion alone (``scene_warp``) would have taken it; NaN where it did
+        not match or no camera motion could be fitted).
+
+        Unlike ``residual`` this needs texture, not a static reference behind the thing:
+        a keypoint on a blanket follows the room whatever covers the blanket in the other
+        frames, while a uniform surface has no keypoint and so no verdict.
+        """
+        H, W = self.images.shape[1:3]
+        cols: dict[tuple[float, float], dict[int, float]] = {}
+        for j, u in enumerate(refs):
+            if u == t or not 0 <= u < len(self.images):
+                continue
+            maps = scene_warp(*self.matches(u, t, self.static_pixels(u, None)), (H, W))  # where frame t's pixels were in u
+            if maps is None:
+                continue
+            xy_t, xy_u = self.matches(t, u, mask, 2000)
+            ix = np.clip(np.round(xy_t[:, 0]).astype(int), 0, W - 1)
+            iy = np.clip(np.round(xy_t[:, 1]).astype(int), 0, H - 1)
+            scene_xy = np.stack([maps[0][iy, ix], maps[1][iy, ix]], 1)
+            for p, d in zip(map(tuple, xy_t), np.linalg.norm(xy_u - scene_xy, axis=1)):
+                cols.setdefault(p, {})[j] = float(d)
+        xy = np.array(list(cols), np.float64).reshape(-1, 2)
+        dist = np.full((len(xy), len(refs)), np.nan)
+        for i, row in enumerate(cols.values()):
+            for j, d in row.items():
+                dist[i, j] = d
+        return xy, dist

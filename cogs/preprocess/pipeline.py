@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
 PERSONS_VERSION = 5  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body; 5: bodies laid on a hand dropped)
-TRACKER_VERSION = 13  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into; 9: the static scene judged after a long loss too; 10: an object lost while carried searched for where a hand has been; 11: GrabCut's spread onto a foot dropped; 12: doubtful runs tracked again from their other side; 13: a foot seen end-on sized from its shin): bumping it redoes the object masks (and what reads them)
+TRACKER_VERSION = 14  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into; 9: the static scene judged after a long loss too; 10: an object lost while carried searched for where a hand has been; 11: GrabCut's spread onto a foot dropped; 12: doubtful runs tracked again from their other side; 13: a foot seen end-on sized from its shin; 14: a prompt's parts that hold still with the room left out): bumping it redoes the object masks (and what reads them)
 SFM_VERSION = 4  # of the cameras step (2: COLMAP's two-view RANSAC seeded, its features extracted and bundles adjusted on one thread; 3: without parallax, COLMAP's rotations or the homography chain, whichever explains the background better; 4: features matched exactly by us, so the same frames give the same cameras): bumping it redoes the cameras
 MASKS_VERSION = 7  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly; 7: a mask's specks left out of its solidity): bumping it redoes the masks step
 BODY_VERSION = 5  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it; 5: the ground only where a foot is seen): bumping it redoes the body step
@@ -561,8 +561,9 @@ class _Runner:
                     if small:
                         log.warning("%s", small)
                 lookalike: dict[int, float] = {}
+                still: dict[int, int] = {}
                 masks, conf = O.propagate_masks(images, list(prompts.values()), list(prompts), human_probs=pe["probs"], kp2d=pe["kp2d"],
-                                                negatives=negative, cues=cues, sources=sources, lookalike=lookalike,
+                                                negatives=negative, cues=cues, sources=sources, lookalike=lookalike, still=still,
                                                 on_frame=lambda n: update(n))
                 for p in self.positives:
                     text = lookalike_prompt_warning(p, lookalike[p.frame])
@@ -578,6 +579,11 @@ class _Runner:
         stats = {"frames_with_object": n, "empty_frames": lost}
         if cues:  # which cue of the classical tracker found each frame
             stats["cues"] = {c: cues.count(c) for c in sorted(set(cues)) if c}
+        if still:  # pixels of the masks left out as still scene: each prompt's, then the frames' that lost some
+            prompted = [p.frame for p in self.positives]
+            stats["still_px"] = {"prompts": {str(k): still.get(k, 0) for k in prompted},
+                                 "frames": sorted(k for k in still if k not in prompted)[:50],
+                                 "frames_px": int(sum(v for k, v in still.items() if k not in prompted))}
         if len(self.positives) > 1:  # which prompt's pass each frame's mask came from
             stats["prompt_of_frame"] = sources
         trusted = int((conf >= min_confidence).sum())

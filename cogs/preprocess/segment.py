@@ -330,3 +330,29 @@ def grabcut_at_hand(rgb: np.ndarray, hand: np.ndarray, size: float, human_prob: 
     if best:
         out[y0:y1, x0:x1] = fill_holes(comp == best)
     return out
+
+
+def grabcut_with_seeds(rgb: np.ndarray, mask: np.ndarray, keep: np.ndarray, drop: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """``mask`` [H, W] bool without what GrabCut, told that ``keep`` [H, W] bool is
+    object and ``drop`` is not, gives to the background -> [H, W] bool (a subset of
+    ``mask``: nothing is added). The rest of ``mask`` is probable object, a margin of a
+    tenth of its size around it probable background, beyond that background: the seeds'
+    colours decide which parts of the mask go with them."""
+    import cv2
+
+    ys, xs = np.nonzero(mask)
+    if not len(ys):
+        return mask.copy()
+    H, W = mask.shape
+    m = max(3, int(0.1 * max(np.ptp(xs), np.ptp(ys))))
+    x0, y0, x1, y1 = max(0, xs.min() - 3 * m), max(0, ys.min() - 3 * m), min(W, xs.max() + 3 * m + 1), min(H, ys.max() + 3 * m + 1)
+    crop = (slice(y0, y1), slice(x0, x1))
+    near = cv2.dilate(mask[crop].astype(np.uint8), np.ones((2 * m + 1, 2 * m + 1), np.uint8)) > 0
+    labels = np.where(near, cv2.GC_PR_BGD, cv2.GC_BGD).astype(np.uint8)
+    labels[mask[crop]] = cv2.GC_PR_FGD
+    labels[drop[crop]] = cv2.GC_BGD
+    labels[keep[crop]] = cv2.GC_FGD
+    grabcut(np.ascontiguousarray(rgb[crop][..., ::-1]), labels, None, iterations, cv2.GC_INIT_WITH_MASK)
+    out = np.zeros_like(mask)
+    out[crop] = _foreground(labels)
+    return out & mask

@@ -31,6 +31,10 @@ takes the first of three cues that holds (``_Tracker._step``):
    (``_Tracker._unchanged``: a patch of background beside the hand does not), and it is
    tentative until the next frame sees it move with the hand.
 
+A prompt's mask first loses the parts that hold still with the room while the rest of it
+moves (``without_still_parts``: the bed inside a box drawn around a guitar), and so does
+every frame's mask at the end (a GrabCut outline spreading into that bed).
+
 A prompt the fingers close over (``holding_hand``) starts carried by that hand, so the
 search keeps to it and the hand cue may look there from the first frame on.
 
@@ -67,6 +71,7 @@ from cogs.preprocess.segment import (
     grabcut_at,
     grabcut_at_hand,
     grabcut_from_seed,
+    grabcut_with_seeds,
     iou,
     largest_component_near,
     mask_stats,
@@ -316,8 +321,9 @@ class FeatureBank:
         return warped, n
 
     def static_matches(self, t0: int, t1: int, static0: np.ndarray, most: int = 500) -> tuple[np.ndarray, np.ndarray]:
-        """Keypoints of frame t0 where ``static0`` [H, W] bool (no person, no object) and
-        their matches in frame t1 -> (xy0 [N, 2], xy1 [N, 2]) pixels. At most ``most``
+        """Keypoints of frame t0 where ``static0`` [H, W] bool (no person, no object; or
+        any pixels whose keypoints are wanted) and their matches in frame t1 -> (xy0 [N,
+        2], xy1 [N, 2]) pixels. At most ``most``
         keypoints, evenly picked, are matched: a textured scene has thousands, and a
         camera's motion needs far fewer (brute-force matching costs their product)."""
         xy0, d0 = self._frame(t0)
@@ -567,6 +573,70 @@ def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float, convex: bo
     return convex_hull(piece) if convex else piece
 
 
+# A keypoint of a mask holds still with the room when it matched in at least two of the
+# frames around it (``_SCENE_OFFSETS`` either way), one of them at least STILL_SPAN frames
+# away, and every match lies within STILL_PX of where the camera's motion alone takes it
+# (a bed: 0.1-0.6 px; a backpack hanging from a still hand drifts 1-7 px in 4 frames); it
+# moves when it lies at least MOVING_PX off in two frames and in the median. Below
+# MIN_STILL still or MIN_MOVING moving keypoints the mask is left as it is (an object at
+# rest holds still as a whole; a stray match is no evidence). Chosen on the six
+# development clips and the synthetic video benchmark
+# (docs/experiments/2026-11-29-still-parts-of-a-mask.md).
+STILL_PX = 1.0
+STILL_SPAN = 4
+MOVING_PX = 3.0
+MIN_STILL = 5
+MIN_MOVING = 5
+
+
+def without_still_parts(rgb: np.ndarray, mask: np.ndarray, scene: StaticScene, k: int) -> np.ndarray:
+    """Prompt frame k's ``mask`` [H, W] bool without the parts that hold still with the
+    room while the rest moves -> [H, W] bool (a subset).
+
+    GrabCut in a box takes whatever inside it stands out from around it: drawn around a
+    guitar, a box holds part of the bed behind it. Keypoints on the mask are followed into
+    the frames around the prompt and compared with the camera's motion
+    (``StaticScene.point_motion``); with enough of both kinds, GrabCut is run again on the
+    mask with the still keypoints' neighbourhoods as background and the moving ones' as
+    object, and the pieces that keep a moving keypoint stay. Uniform surfaces have no
+    keypoints: they go with whichever seeds' colours they share."""
+    import cv2
+
+    T = len(scene.images)
+    refs = [k + s * d for d in _SCENE_OFFSETS for s in (1, -1) if 0 <= k + s * d < T]
+    xy, dist = scene.point_motion(k, mask, refs)
+    if not len(xy):
+        return mask
+    seen = np.isfinite(dist)
+    n = seen.sum(1)
+    span = np.where(seen, np.abs(np.array(refs) - k)[None, :], 0).max(1)
+    still = (n >= 2) & (span >= STILL_SPAN) & (np.where(seen, dist, 0.0).max(1) <= STILL_PX)
+    far = np.where(seen, dist, 0.0) >= MOVING_PX
+    med = np.array([np.median(d[f]) if f.any() else 0.0 for d, f in zip(dist, seen)])
+    moving = (far.sum(1) >= 2) & (med >= MOVING_PX)
+    if still.sum() < MIN_STILL or moving.sum() < MIN_MOVING:
+        return mask
+    H, W = mask.shape
+    r = max(1, round(0.005 * max(H, W)))
+
+    def seeds(points: np.ndarray) -> np.ndarray:
+        out = np.zeros((H, W), np.uint8)
+        for x, y in np.round(points).astype(int):
+            cv2.circle(out, (int(x), int(y)), r, 1, -1)
+        return out > 0
+
+    keep, drop = seeds(xy[moving]), seeds(xy[still])
+    out = grabcut_with_seeds(rgb, mask, keep & ~drop, drop & ~keep)
+    n_lab, lab = cv2.connectedComponents(out.astype(np.uint8))
+    ids = np.unique(lab[keep & out])
+    out = np.isin(lab, ids[ids > 0])
+    if not out.any():
+        return mask
+    log.info("prompt on frame %d: %d of its %d pixels hold still with the room (%d keypoints; %d move): left out",
+             k, int(mask.sum() - out.sum()), int(mask.sum()), int(still.sum()), int(moving.sum()))
+    return out
+
+
 def drop_stray_pieces(mask: np.ndarray, area: float, grow: float = 1.5) -> np.ndarray:
     """A convex object's mask without the pieces that cannot belong to it -> [H, W] bool.
 
@@ -720,6 +790,16 @@ class _Tracker:
 
         if prompts is None:
             prompts = {prompt_frame: prompt_mask}
+        self.bank = FeatureBank(images)
+        self.scene = None if human_probs is None else StaticScene(images, human_probs, self.bank.static_matches)
+        self.still_px: dict[int, int] = {}  # per prompt frame: pixels left out as still scene
+        if self.scene is not None:
+            prompts = dict(prompts)
+            for k in prompts:
+                trimmed = without_still_parts(images[k], prompts[k], self.scene, k)
+                self.still_px[k] = int(prompts[k].sum() - trimmed.sum())
+                prompts[k] = trimmed
+        self.prompts = prompts  # the prompts' masks, as tracked
         self.images = images
         self.human_probs = human_probs
         self.kp2d = kp2d
@@ -751,7 +831,6 @@ class _Tracker:
                 n = len(neg) if self.distractors is None else len(self.distractors)
                 neg = neg[np.arange(n) % len(neg)]
                 self.distractors = neg if self.distractors is None else np.concatenate([self.distractors, neg])
-        self.bank = FeatureBank(images)
         self.appearance = {}
         for k, m in prompts.items():
             self.bank.pin(k, m)
@@ -760,7 +839,6 @@ class _Tracker:
             # a box, a ball, a bottle are convex; not a mug by its handle
             self.appearance[k] = (base, float(base.prob(images[k])[m].mean()), float(m.sum()), solidity(m) >= 0.9, s0)
         self.use(next(iter(prompts)))
-        self.scene = None if human_probs is None else StaticScene(images, human_probs, self.bank.static_matches)
         self.masks: np.ndarray | None = None  # [T, H, W] bool: the frames found so far (``run``'s masks)
         self._scene_maps: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}
 
@@ -1275,6 +1353,7 @@ def propagate_masks(
     negatives: dict[int, np.ndarray] | None = None,
     sources: list | None = None,
     lookalike: dict | None = None,
+    still: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Propagate one frame's object mask, or several frames' masks, through the video (see
     the module docstring; several prompts: ``combine_passes``).
@@ -1297,6 +1376,9 @@ def propagate_masks(
     ``sources``: a list that receives the prompt frame each frame's result comes from.
     ``lookalike``: a dict that receives, per prompt frame, the share of the prompt's
     surroundings that looks like the object (``_Tracker.lookalike_surroundings``).
+    ``still``: a dict that receives, per prompt frame, how many pixels of the prompt's mask
+    were left out as still scene (``without_still_parts``), and per other frame where
+    some were, how many of its mask.
 
     Returns (masks [T, H, W] bool, confidence [T] in [0, 1]; 0 where the object was lost).
     """
@@ -1318,6 +1400,9 @@ def propagate_masks(
     way = np.where(np.arange(T) > frames[-1], 1, -1)  # the direction each frame was tracked in
     tracker = _Tracker(images, None, None, human_probs, kp2d, min_score, adapt, min_align, max_hand_frames,
                        prompts=prompts, negatives=negatives)
+    prompts = tracker.prompts
+    if still is not None:
+        still.update(tracker.still_px)
     for k in frames:
         masks[k], conf[k], found[k], origin[k] = prompts[k], 1.0, "prompt", k
         if lookalike is not None:
@@ -1376,6 +1461,15 @@ def propagate_masks(
         for t in np.flatnonzero(carried_on(on_forearm(masks, kp2d), masks, found)):
             if found[t] != "prompt":
                 conf[t] = min(conf[t], UNCLEAR_CONFIDENCE)
+    # What a frame's outline took in of the room around the object (a GrabCut spreading
+    # into the bed beside a guitar), where the rest of the mask moves.
+    if tracker.scene is not None:
+        for t in range(T):
+            if masks[t].any() and found[t] != "prompt":
+                kept = without_still_parts(images[t], masks[t], tracker.scene, t)
+                if still is not None and kept.sum() < masks[t].sum():
+                    still[t] = int(masks[t].sum() - kept.sum())
+                masks[t] = kept
     log.debug("object cues per frame: %s", found)
     if cues is not None:
         cues[:] = found
