@@ -1261,6 +1261,32 @@ def test_a_camera_that_only_turns_is_not_mapped(tmp_path):
     assert poses == {} and len(xyz) == 0 and stats["mapping"].startswith("skipped"), stats
 
 
+def test_a_fixed_camera_is_told_from_a_probe_of_the_pairs(tmp_path):
+    # Pairs among 12 frames spread over the clip: a tripod is known from them, the other
+    # pairs are not matched. Too few strong pairs leave the clip to full matching.
+    import cv2
+
+    H, W = 240, 320
+    K = S.intrinsics(W, H, 300.0)
+    pairs = S.image_pairs(100)
+    probe = S.probe_pairs(100, pairs)
+    assert len(probe) == 66 and {a for a, _ in probe} | {b for _, b in probe} == {0, 9, 18, 27, 36, 45, 54, 63, 72, 81, 90, 99}
+    assert S.probe_pairs(12, S.image_pairs(12)) == []  # the probe would be every pair
+    H_turn = K @ _rot(1, 3.0) @ np.linalg.inv(K)
+    assert S.fixed_camera([("PANORAMIC", 400, H_turn)] * 40, 66, K)
+    assert not S.fixed_camera([("PANORAMIC", 400, H_turn)] * 20 + [("PANORAMIC", 30, H_turn)] * 20, 66, K)
+    assert not S.fixed_camera([("PANORAMIC", 400, H_turn)] * 40 + [("CALIBRATED", 400, np.eye(3))], 66, K)
+    # End to end: 14 frames of a camera panning over a distant texture.
+    pano = _texture(3 * H, 3 * W, seed=2)
+    Kp = S.intrinsics(3 * W, 3 * H, 300.0)
+    images = np.stack([cv2.warpPerspective(pano, K @ _rot(1, 0.6 * k) @ _rot(0, 0.2 * k) @ np.linalg.inv(Kp), (W, H)) for k in range(14)])
+    phases = []
+    poses, xyz, _, stats = S.run_colmap(images, np.ones(images.shape[:3], bool), K, tmp_path / "colmap",
+                                        progress=lambda phase, done, total: phases.append(phase))
+    assert poses == {} and stats["mapping"] == "skipped: no pair with parallax among 66 probe pairs", stats
+    assert phases[-1] == "mapping"
+
+
 def test_background_residual_prefers_the_rotations_without_a_jump():
     # A camera panning over a distant texture; the same track with a 0.75 degree jump
     # halfway (what COLMAP gave the basketball clip without parallax) explains the

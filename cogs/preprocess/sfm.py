@@ -14,7 +14,10 @@ triangulation angles allowed), watermark detection off.
 explained by a homography that is a pure rotation (``rotations_only``: a camera on a
 tripod), no initial pair can show the 2 degrees of triangulation angle the mapper asks
 for, and COLMAP would spend minutes trying them all (6 on the 100-frame juggle clip's
-4,950 pairs) to fail; the mapper is not run and the rotation-only fallback takes over.
+4,950 pairs) to fail; the mapper is not run and the rotation-only fallback takes over. A
+probe of the pairs among 12 frames spread over the clip (``probe_pairs``, ``fixed_camera``)
+tells a tripod first, so its thousands of pairs are not even matched; otherwise the probe
+is thrown away and every pair is matched as before.
 
 **Rotation-only fallback**, used when most frames fail to register or the reconstruction
 has no usable parallax (a tripod-like clip) and its rotations explain the background worse
@@ -226,6 +229,65 @@ def _verified_geometries(pycolmap, db: Path) -> list[tuple[str, int, np.ndarray]
         database.close()
 
 
+# The probe: every pair among PROBE_FRAMES frames spread evenly over the clip (66 pairs,
+# whatever its length; 1.3 % of a 100-frame clip's 4,950). A tripod clip is told from it
+# when at least PROBE_STRONG of them could start the mapper (enough inliers: a clip matched
+# too weakly is not judged on a sample) and every one that could is a pure rotation.
+PROBE_FRAMES = 12
+PROBE_STRONG = 0.5
+
+
+def probe_pairs(T: int, pairs: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The pairs of ``pairs`` among ``PROBE_FRAMES`` frames spread evenly over T -> a list
+    (empty when that would be all of them, or none)."""
+    spread = set(np.linspace(0, T - 1, min(T, PROBE_FRAMES)).round().astype(int).tolist())
+    probe = [(a, b) for a, b in pairs if a in spread and b in spread]
+    return probe if 0 < len(probe) < len(pairs) else []
+
+
+def fixed_camera(geometries: list[tuple[str, int, np.ndarray]], n_pairs: int, K: np.ndarray) -> bool:
+    """Whether the verified ``geometries`` of ``n_pairs`` probe pairs show a camera that
+    only turns: at least ``PROBE_STRONG`` of the pairs strong enough to start the mapper,
+    and each of those a pure rotation (``rotations_only``)."""
+    strong = sum(1 for _, inliers, _ in geometries if inliers >= MAPPER_MIN_INLIERS)
+    return strong >= PROBE_STRONG * n_pairs and rotations_only(geometries, K)
+
+
+def _match_and_verify(pycolmap, db: Path, work_dir: Path, names: list[str], pairs: list[tuple[int, int]], matching: str,
+                      overlap: int, verification, progress=None) -> None:
+    """Match ``pairs`` of frames exactly (``match_descriptors``) into the database ``db``
+    and verify them with COLMAP (``verification``: its two-view geometry options).
+
+    Descriptors are read as the pairs need them (pairs come in order of their first frame),
+    and only a frame's and its near neighbours' are kept: 570 frames of 8,192 would be
+    600 MB."""
+    database = pycolmap.Database.open(str(db))
+    try:
+        ids = {im.name: im.image_id for im in database.read_all_images()}
+        kept: dict[int, np.ndarray] = {}
+
+        def descriptors(i: int, keep: bool) -> np.ndarray:
+            d = kept.get(i)
+            if d is None:
+                d = np.asarray(database.read_descriptors(ids[names[i]]).data)
+                if keep:
+                    kept[i] = d
+            return d
+
+        for k, (a, b) in enumerate(pairs):
+            for i in [i for i in kept if i < a]:
+                del kept[i]
+            near = matching == "exhaustive" or b - a <= overlap
+            database.write_matches(ids[names[a]], ids[names[b]], match_descriptors(descriptors(a, True), descriptors(b, near)))
+            if progress and (k + 1) % 50 == 0:
+                progress("matching", k + 1, len(pairs))
+    finally:
+        database.close()
+    pairs_file = work_dir / "pairs.txt"
+    pairs_file.write_text("".join(f"{names[a]} {names[b]}\n" for a, b in pairs))
+    pycolmap.verify_matches(db, pairs_file, options=verification)
+
+
 def run_colmap(
     images: np.ndarray,
     static_masks: np.ndarray,
@@ -293,35 +355,27 @@ def run_colmap(
     # Matching is ours, COLMAP's verification: its CPU matcher (through faiss) gave other
     # matches for a few pairs in 3 of 35 runs of the same frames, and twice another
     # reconstruction (docs/experiments/2026-11-28-feet-seen-end-on.md).
-    # Descriptors are read as the pairs need them (pairs come in order of their first frame),
-    # and only a frame's and its near neighbours' are kept: 570 frames of 8,192 would be
-    # 600 MB.
-    database = pycolmap.Database.open(str(db))
-    try:
-        ids = {im.name: im.image_id for im in database.read_all_images()}
-        pairs = image_pairs(T, matching, overlap)
-        kept: dict[int, np.ndarray] = {}
-
-        def descriptors(i: int, keep: bool) -> np.ndarray:
-            d = kept.get(i)
-            if d is None:
-                d = np.asarray(database.read_descriptors(ids[names[i]]).data)
-                if keep:
-                    kept[i] = d
-            return d
-
-        for k, (a, b) in enumerate(pairs):
-            for i in [i for i in kept if i < a]:
-                del kept[i]
-            near = matching == "exhaustive" or b - a <= overlap
-            database.write_matches(ids[names[a]], ids[names[b]], match_descriptors(descriptors(a, True), descriptors(b, near)))
-            if progress and (k + 1) % 50 == 0:
-                progress("matching", k + 1, len(pairs))
-    finally:
-        database.close()
-    pairs_file = work_dir / "pairs.txt"
-    pairs_file.write_text("".join(f"{names[a]} {names[b]}\n" for a, b in pairs))
-    pycolmap.verify_matches(db, pairs_file, options=verification)
+    pairs = image_pairs(T, matching, overlap)
+    probe = probe_pairs(T, pairs)
+    if probe:
+        # A few pairs first: a camera on a tripod is told from them, and the thousands of
+        # others need not be matched to learn that no pair has parallax.
+        _match_and_verify(pycolmap, db, work_dir, names, probe, matching, overlap, verification)
+        probed = _verified_geometries(pycolmap, db)
+        if fixed_camera(probed, len(probe), K):
+            log.info("the camera only turns on the spot in %d pairs spread over the clip: structure from motion is "
+                     "not run", len(probe))
+            if progress:
+                progress("matching", 1, 1)
+                progress("mapping", T, T)
+            return {}, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"n_models": 0, "mapping": f"skipped: no pair with parallax among {len(probe)} probe pairs"}
+        database = pycolmap.Database.open(str(db))
+        try:  # the full matching starts from an empty table, as without the probe
+            database.clear_matches()
+            database.clear_two_view_geometries()
+        finally:
+            database.close()
+    _match_and_verify(pycolmap, db, work_dir, names, pairs, matching, overlap, verification, progress)
     if progress:
         progress("matching", 1, 1)
     if rotations_only(_verified_geometries(pycolmap, db), K):
