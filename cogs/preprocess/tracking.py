@@ -590,12 +590,13 @@ MIN_MOVING = 5
 
 
 def without_still_parts(rgb: np.ndarray, mask: np.ndarray, scene: StaticScene, k: int) -> np.ndarray:
-    """Prompt frame k's ``mask`` [H, W] bool without the parts that hold still with the
+    """Frame k's object ``mask`` [H, W] bool without the parts that hold still with the
     room while the rest moves -> [H, W] bool (a subset).
 
     GrabCut in a box takes whatever inside it stands out from around it: drawn around a
-    guitar, a box holds part of the bed behind it. Keypoints on the mask are followed into
-    the frames around the prompt and compared with the camera's motion
+    guitar, a box holds part of the bed behind it, and later outlines spread into it.
+    Keypoints on the mask are followed into the frames around frame k and compared with
+    the camera's motion
     (``StaticScene.point_motion``); with enough of both kinds, GrabCut is run again on the
     mask with the still keypoints' neighbourhoods as background and the moving ones' as
     object, and the pieces that keep a moving keypoint stay. Uniform surfaces have no
@@ -627,13 +628,13 @@ def without_still_parts(rgb: np.ndarray, mask: np.ndarray, scene: StaticScene, k
 
     keep, drop = seeds(xy[moving]), seeds(xy[still])
     out = grabcut_with_seeds(rgb, mask, keep & ~drop, drop & ~keep)
-    n_lab, lab = cv2.connectedComponents(out.astype(np.uint8))
+    _, lab = cv2.connectedComponents(out.astype(np.uint8))
     ids = np.unique(lab[keep & out])
     out = np.isin(lab, ids[ids > 0])
     if not out.any():
         return mask
-    log.info("prompt on frame %d: %d of its %d pixels hold still with the room (%d keypoints; %d move): left out",
-             k, int(mask.sum() - out.sum()), int(mask.sum()), int(still.sum()), int(moving.sum()))
+    log.debug("frame %d: %d of the object mask's %d pixels hold still with the room (%d keypoints; %d move): left out",
+              k, int(mask.sum() - out.sum()), int(mask.sum()), int(still.sum()), int(moving.sum()))
     return out
 
 
@@ -798,6 +799,9 @@ class _Tracker:
             for k in prompts:
                 trimmed = without_still_parts(images[k], prompts[k], self.scene, k)
                 self.still_px[k] = int(prompts[k].sum() - trimmed.sum())
+                if self.still_px[k]:
+                    log.info("the prompt on frame %d: %d of its mask's %d pixels hold still with the room while the rest "
+                             "moves (scenery inside the box): left out", k, self.still_px[k], int(prompts[k].sum()))
                 prompts[k] = trimmed
         self.prompts = prompts  # the prompts' masks, as tracked
         self.images = images
