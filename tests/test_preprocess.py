@@ -2192,6 +2192,15 @@ def test_the_world_scale_comes_from_the_ground_and_its_absence_is_warned(caplog)
     assert [r for r in caplog.records if "scale is unknown" in r.getMessage() and "floor" in r.getMessage()]
 
 
+def test_a_body_fitted_far_off_its_keypoints_is_reported_with_the_worlds_scale():
+    from cogs.preprocess import bodyfit as B
+
+    assert B.poor_fit_warning(0.015, None) is None and B.poor_fit_warning(0.06, "from the person's motion") is None
+    assert B.poor_fit_warning(float("nan"), None) is None
+    text = B.poor_fit_warning(0.128, "unknown: ... SfM units kept")
+    assert "0.13 of the person's height" in text and "SfM units kept" in text and "floor" in text
+
+
 def test_without_a_floor_a_hand_held_camera_gets_its_scale_from_the_persons_smooth_path():
     """The floor out of view and no point near the feet: a hand-held camera's jitter, in SfM
     units, would shake a person standing still by the wrong factor; the scale at which the

@@ -97,6 +97,22 @@ class BodyFit:
     reprojection_error: np.ndarray  # [T] mean 2D error of the mapped joints / person height (NaN if undetected)
 
 
+def poor_fit_warning(mean_error: float, scale_note: str | None) -> str | None:
+    """What to tell the user when the fitted body lies far off MediaPipe's keypoints on
+    average (more than ``bodymasks.MAX_FIT_ERROR`` of the person's height; good fits are
+    0.01-0.06 on the development clips and the synthetic video): the world the body was
+    fitted in is then most likely wrong (the guitar clip at 0.128 with its scale 41x off,
+    0.38 before the scale came from the person's motion), or None."""
+    from cogs.preprocess.bodymasks import MAX_FIT_ERROR
+
+    if not mean_error > MAX_FIT_ERROR:
+        return None
+    return (f"the fitted body lies {mean_error:.2f} of the person's height off MediaPipe's keypoints on average (good "
+            f"fits: 0.01-0.06), so the world it was fitted in is likely wrong (its scale: {scale_note or 'from the floor'}); "
+            "the masks step will not use the body and training may fail. A clip that shows the floor round the person's "
+            "feet gives the world its scale; `source.body_fit` in scene.json says what was found")
+
+
 def _mapped(model) -> tuple[np.ndarray, np.ndarray]:
     mp_idx = np.array([m for m, _ in MP_TO_ANNY])
     bones = np.array([model.bone_index(b) for _, b in MP_TO_ANNY])

@@ -697,6 +697,9 @@ class _Runner:
             "reprojection_error_max": float(np.nanmax(fit.reprojection_error)), "fit_seconds": time.perf_counter() - t0,
             **notes,
         }
+        text = B.poor_fit_warning(stats["reprojection_error_mean"], notes.get("scale"))
+        if text:
+            log.warning("%s", text)
         return {
             "world_to_camera": w2c, "registered": reg, "points_xyz": xyz.astype(np.float32), "points_rgb": rgb.astype(np.uint8),
             "shape": fit.track.shape, "pose": fit.track.pose, "transl": fit.track.transl, "joints": fit.joints_world,
