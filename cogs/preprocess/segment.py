@@ -352,7 +352,12 @@ def grabcut_with_seeds(rgb: np.ndarray, mask: np.ndarray, keep: np.ndarray, drop
     labels[mask[crop]] = cv2.GC_PR_FGD
     labels[drop[crop]] = cv2.GC_BGD
     labels[keep[crop]] = cv2.GC_FGD
-    grabcut(np.ascontiguousarray(rgb[crop][..., ::-1]), labels, None, iterations, cv2.GC_INIT_WITH_MASK)
+    if not ((labels == cv2.GC_BGD) | (labels == cv2.GC_PR_BGD)).any():
+        return mask.copy()  # the mask fills the frame: nothing to tell it from
+    try:
+        grabcut(np.ascontiguousarray(rgb[crop][..., ::-1]), labels, None, iterations, cv2.GC_INIT_WITH_MASK)
+    except cv2.error:
+        return mask.copy()
     out = np.zeros_like(mask)
     out[crop] = _foreground(labels)
     return out & mask

@@ -355,6 +355,12 @@ def run_colmap(
     # Matching is ours, COLMAP's verification: its CPU matcher (through faiss) gave other
     # matches for a few pairs in 3 of 35 runs of the same frames, and twice another
     # reconstruction (docs/experiments/2026-11-28-feet-seen-end-on.md).
+    def not_mapped(reason: str):
+        if progress:
+            progress("matching", 1, 1)
+            progress("mapping", T, T)
+        return {}, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"n_models": 0, "mapping": f"skipped: {reason}"}
+
     pairs = image_pairs(T, matching, overlap)
     probe = probe_pairs(T, pairs)
     if probe:
@@ -365,10 +371,7 @@ def run_colmap(
         if fixed_camera(probed, len(probe), K):
             log.info("the camera only turns on the spot in %d pairs spread over the clip: structure from motion is "
                      "not run", len(probe))
-            if progress:
-                progress("matching", 1, 1)
-                progress("mapping", T, T)
-            return {}, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"n_models": 0, "mapping": f"skipped: no pair with parallax among {len(probe)} probe pairs"}
+            return not_mapped(f"no pair with parallax among {len(probe)} probe pairs")
         database = pycolmap.Database.open(str(db))
         try:  # the full matching starts from an empty table, as without the probe
             database.clear_matches()
@@ -376,14 +379,12 @@ def run_colmap(
         finally:
             database.close()
     _match_and_verify(pycolmap, db, work_dir, names, pairs, matching, overlap, verification, progress)
-    if progress:
-        progress("matching", 1, 1)
     if rotations_only(_verified_geometries(pycolmap, db), K):
         log.info("no frame pair can start structure from motion (each is a turn of the camera on the spot, or matched "
                  "too weakly): the mapper is not run")
-        if progress:
-            progress("mapping", T, T)
-        return {}, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"n_models": 0, "mapping": "skipped: no pair with parallax"}
+        return not_mapped("no pair with parallax")
+    if progress:
+        progress("matching", 1, 1)
 
     opts = pycolmap.IncrementalPipelineOptions()
     opts.ba_refine_focal_length = False
