@@ -72,17 +72,80 @@ def test_the_first_person_found_must_be_in_the_box(two_people):
     assert not track.detected.any()
 
 
-def test_body_region_covers_the_limbs_and_leaves_a_neighbour_out():
-    from cogs.preprocess.persons import N_LANDMARKS, body_region
+def _figure(dx: float = 0.0, face=(50.0, 20.0)) -> np.ndarray:
+    """A standing figure's keypoints (shoulders at y 40, hips at y 80: a 40 px torso, knees
+    110, ankles 140) moved ``dx`` to the right, its face's points around ``face``."""
+    from cogs.preprocess.persons import N_LANDMARKS
 
     kp = np.full((N_LANDMARKS, 3), np.nan, np.float32)
-    # A standing figure: shoulders at y 40, hips at y 80, knees 110, ankles 140.
     for i, (x, y) in {11: (40, 40), 12: (60, 40), 23: (44, 80), 24: (56, 80), 25: (44, 110),
                       26: (56, 110), 27: (44, 140), 28: (56, 140), 13: (36, 60), 15: (34, 80)}.items():
-        kp[i] = (x, y, 1.0)
-    region = body_region(kp, (160, 160), reach=6)
-    assert region[60, 50] and region[125, 44] and region[70, 35]  # torso, shin, forearm
+        kp[i] = (x + dx, y, 1.0)
+    for i in range(11):
+        kp[i] = (face[0] + dx + (i % 3 - 1) * 3, face[1] + (i % 2) * 2, 1.0)
+    return kp
+
+
+def test_body_region_covers_the_limbs_and_leaves_a_neighbour_out():
+    from cogs.preprocess.persons import body_region
+
+    region = body_region(_figure(), (160, 160), reach=6)
+    assert region[60, 50] and region[125, 44] and region[70, 35] and region[20, 50]  # torso, shin, forearm, face
     assert not region[60, 100] and not region[20, 130]  # a neighbour's place
+
+
+def test_a_face_that_moves_further_on_the_body_than_a_head_can_is_somebody_elses():
+    """MediaPipe lays the followed body under the face of a person just behind its
+    shoulder (the loading development clip, frame 91): the face moves on the body."""
+    from cogs.preprocess.persons import FollowSettings, _Followed
+
+    s = FollowSettings()
+    person = _Followed(np.array([30, 10, 70, 150], float), (160, 160), s)
+    assert person.face_moved(_figure()) is None  # nothing known yet
+    person.found(_figure(), np.zeros((160, 160), bool), None)
+    # The whole body walking 12 px, the head bending 0.3 torso lengths: the same person.
+    assert person.face_moved(_figure(dx=12)) is None
+    assert person.face_moved(_figure(face=(50, 32))) is None
+    # The face 0.6 torso lengths off, over the right shoulder: somebody else's.
+    moved = person.face_moved(_figure(face=(70, 30)))
+    assert moved is not None and moved == pytest.approx(np.hypot(20, 10) / 40, abs=0.01)
+    person.missed()  # without a find on the previous frame there is nothing to compare
+    assert person.face_moved(_figure(face=(70, 30))) is None
+
+
+def test_somebody_elses_face_is_followed_by_its_look_and_let_go_when_gone():
+    import cv2
+
+    from cogs.preprocess.persons import _OtherFaces
+
+    rng = np.random.default_rng(0)
+    room = cv2.GaussianBlur(rng.integers(0, 255, (120, 160, 3), dtype=np.uint8), (5, 5), 0)
+    head = cv2.GaussianBlur(rng.integers(0, 255, (21, 21, 3), dtype=np.uint8), (3, 3), 0)
+
+    def frame(x, y):  # the head's centre at (x, y)
+        im = room.copy()
+        im[y - 10:y + 11, x - 10:x + 11] = head
+        return im
+
+    others = _OtherFaces(min_match=0.5)
+    disc = others.add(frame(60, 50), np.array([60.0, 50.0]), 8)
+    assert disc[50, 60] and disc[50, 67] and not disc[50, 70]
+    for k in range(1, 7):  # walking 3 px right and 1 px down a frame
+        others.follow(frame(60 + 3 * k, 50 + k))
+        assert len(others.faces) == 1
+        centre = others.faces[0][0]
+        assert np.allclose(centre, (60 + 3 * k, 50 + k), atol=1.0), (k, centre)
+    assert others.region((120, 160))[56, 78] and not others.region((120, 160))[56, 60]
+    # The followed person's own face found on it: let go (painting it out would hide them).
+    kept = list(others.faces)
+    others.drop_at(np.array([100.0, 20.0]))
+    assert len(others.faces) == 1
+    others.drop_at(np.array([80.0, 57.0]))
+    assert others.faces == []
+    # Gone from the room: let go.
+    others.faces = kept
+    others.follow(room)
+    assert others.faces == []
 
 
 @pytest.mark.parametrize("value, message", [
