@@ -1544,10 +1544,13 @@ def test_the_fitted_body_adds_a_missed_forearm_and_takes_fingers_and_bleed_out()
 
 def test_without_a_fitted_body_or_with_given_masks_the_masks_only_become_disjoint():
     from cogs.preprocess.bodymasks import refine_masks
+    from cogs.preprocess.segment import align_to_edges
 
     img, person, obj, parts, *_ = _body_masks_frame()
+    # No body: disjoint, the outline onto the frame's edges (no fitted body needed for that).
+    edged = align_to_edges(img, person & ~obj) & ~obj
     human, obj2, stats = refine_masks(img[None], person[None], obj[None], np.zeros_like(parts)[None], np.array([True]))
-    assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all()
+    assert (obj2[0] == obj).all() and (human[0] == edged).all()
     human, obj2, _ = refine_masks(img[None], person[None], obj[None], parts[None], np.array([False]))  # no detection: untouched
     assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all()
     human, obj2, _ = refine_masks(img[None], person[None], None, parts[None], np.array([True]))
@@ -1557,9 +1560,9 @@ def test_without_a_fitted_body_or_with_given_masks_the_masks_only_become_disjoin
     assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all()
     # A body fit far off its keypoints in a frame is no evidence there.
     human, obj2, stats = refine_masks(img[None], person[None], obj[None], parts[None], np.array([True]), fit_error=np.array([0.3]))
-    assert (obj2[0] == obj).all() and (human[0] == (person & ~obj)).all() and stats["frames_body_unfit"] == 1
+    assert (obj2[0] == obj).all() and (human[0] == edged).all() and stats["frames_body_unfit"] == 1
     human, obj2, stats = refine_masks(img[None], person[None], obj[None], parts[None], np.array([True]), fit_error=np.array([0.02]))
-    assert (human[0] != (person & ~obj)).any() and stats["frames_body_unfit"] == 0
+    assert (human[0] != edged).any() and stats["frames_body_unfit"] == 0
 
 
 def test_an_object_held_in_front_of_the_body_grows_by_the_pixels_that_move_with_it():
@@ -2044,6 +2047,34 @@ def test_cli_reports_a_missing_video_with_exit_code_2(tmp_path, capsys):
     code = main(["preprocess", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "s")])
     assert code == 2
     assert "nope.mp4" in capsys.readouterr().err
+
+
+def test_a_mask_predicted_on_a_coarse_grid_is_moved_onto_the_frames_edges():
+    """MediaPipe predicts its person mask on a 256-cell grid and upsamples it: the outline
+    is off by up to a cell either way, and `align_to_edges` moves it onto the edges."""
+    import cv2
+
+    from cogs.preprocess.segment import align_to_edges, guided_filter
+
+    H, W = 240, 320
+    rng = np.random.default_rng(5)
+    img = cv2.GaussianBlur(rng.integers(90, 200, (H, W, 3), dtype=np.uint8), (0, 0), 3)  # a textured room
+    person = np.zeros((H, W), np.uint8)
+    cv2.ellipse(person, (150, 120), (40, 95), 10, 0, 360, 1, -1)
+    cv2.circle(person, (200, 70), 18, 1, -1)  # a raised hand
+    cv2.line(person, (160, 60), (200, 70), 1, 6)  # its arm
+    person = person > 0
+    img[person] = np.clip(np.array([50, 60, 130]) + rng.integers(-15, 15, (int(person.sum()), 3)), 0, 255)
+    # Predicted a pixel to the right on a grid of 4 px cells, upsampled bilinearly.
+    small = cv2.resize(np.roll(person, 1, axis=1).astype(np.float32), (W // 4, H // 4), interpolation=cv2.INTER_AREA)
+    coarse = cv2.resize(small, (W, H), interpolation=cv2.INTER_LINEAR) > 0.5
+    before, after = _iou(coarse, person), _iou(align_to_edges(img, coarse), person)
+    assert after > before + 0.02 and after > 0.99, (before, after)  # 0.970 -> 0.995 when written
+    # A constant p stays constant; where the frame has no edges the outline cannot move far.
+    assert np.allclose(guided_filter(img, np.full((H, W), 0.3, np.float32), 3, 1e-3), 0.3, atol=1e-3)
+    flat = np.full((H, W, 3), 128, np.uint8)
+    assert _iou(align_to_edges(flat, coarse), coarse) > 0.97
+    assert not align_to_edges(img, np.zeros((H, W), bool)).any()
 
 
 def test_boundary_refinement_tightens_a_mask_that_bleeds_into_the_background():

