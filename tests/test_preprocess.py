@@ -1547,7 +1547,7 @@ def test_without_a_fitted_body_or_with_given_masks_the_masks_only_become_disjoin
     from cogs.preprocess.segment import align_to_edges
 
     img, person, obj, parts, *_ = _body_masks_frame()
-    # No body: disjoint, the outline onto the frame's edges (no fitted body needed for that).
+    # No body: disjoint, the outlines onto the frame's edges (the object's is on them already here).
     edged = align_to_edges(img, person & ~obj) & ~obj
     human, obj2, stats = refine_masks(img[None], person[None], obj[None], np.zeros_like(parts)[None], np.array([True]))
     assert (obj2[0] == obj).all() and (human[0] == edged).all()
