@@ -399,7 +399,7 @@ def refine_masks(images: np.ndarray, person: np.ndarray, obj: np.ndarray | None,
         if fingers and o.any():
             o = align_to_edges(images[t], o)
         if person_edges and detected[t]:
-            h = align_to_edges(images[t], h & ~o)
+            h = align_to_edges(images[t], h & ~o, keep_thin=False)
         human[t] = h & ~o
         if obj_out is not None:
             obj_out[t] = o

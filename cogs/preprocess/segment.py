@@ -178,12 +178,19 @@ def guided_filter(rgb: np.ndarray, p: np.ndarray, radius: int, eps: float) -> np
     return (np.stack([mean(a[..., c]) for c in range(3)], -1) * guide).sum(-1) + mean(b)
 
 
-def align_to_edges(rgb: np.ndarray, mask: np.ndarray, radius: float | None = None, eps: float = EDGE_EPS) -> np.ndarray:
+def align_to_edges(rgb: np.ndarray, mask: np.ndarray, radius: float | None = None, eps: float = EDGE_EPS,
+                   keep_thin: bool = True) -> np.ndarray:
     """A mask's outline moved onto the image's edges nearby: the mask guided-filtered by the
     frame (`guided_filter`), kept where the result is at least a half -> [H, W] bool. A mask
     predicted on a coarser grid than the frame (MediaPipe's person mask) is off the true
     outline by up to a cell either way; this moves it by at most ``radius`` pixels
-    (default `EDGE_RADIUS` cells of MediaPipe's grid)."""
+    (default `EDGE_RADIUS` cells of MediaPipe's grid). With ``keep_thin`` the parts
+    narrower than the filter's box are kept as they are: averaged over the box they fall
+    under a half whatever the edges say (a racket's handle, a small object's top; on the
+    bottle development clip the bottle's top at 40 and 49 lost 30-60 % of its pixels).
+    A person's mask does without: MediaPipe's has no part that thin but the bleed along
+    the outline (on the synthetic benchmark's reference video, keeping thin parts gives
+    back 0.003 of the 0.012 the filter gains on the person, 0.004 of 0.015 on the object)."""
     if not mask.any():
         return mask
     H, W = mask.shape
@@ -191,8 +198,15 @@ def align_to_edges(rgb: np.ndarray, mask: np.ndarray, radius: float | None = Non
     ys, xs = np.nonzero(mask)
     y0, y1 = max(0, ys.min() - 3 * r), min(H, ys.max() + 3 * r + 1)
     x0, x1 = max(0, xs.min() - 3 * r), min(W, xs.max() + 3 * r + 1)
+    import cv2
+
+    m = mask[y0:y1, x0:x1]
+    aligned = guided_filter(rgb[y0:y1, x0:x1], m, r, eps) >= 0.5
+    if keep_thin:
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        aligned |= m & ~(cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_OPEN, disc) > 0)
     out = np.zeros_like(mask)
-    out[y0:y1, x0:x1] = guided_filter(rgb[y0:y1, x0:x1], mask[y0:y1, x0:x1], r, eps) >= 0.5
+    out[y0:y1, x0:x1] = aligned
     return out
 
 
