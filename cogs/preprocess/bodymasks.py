@@ -364,8 +364,8 @@ def refine_masks(images: np.ndarray, person: np.ndarray, obj: np.ndarray | None,
     they are), then the object's and the person's outlines moved onto the frame's edges
     (`segment.align_to_edges`; MediaPipe predicts its mask on a 256-cell grid, and the
     tracker's GrabCut and flow leave the object's a few pixels off): on the synthetic video
-    benchmark at seven settings the human IoU rises by 0.008-0.012 and the object IoU by
-    0.010-0.015 where it is tracked (0.001 lower at two variants whose track is lost).
+    benchmark at seven settings the human IoU rises by 0.009-0.012 and the object IoU by
+    0.003-0.010, the object's trajectory the same.
     With ``fingers`` off (the user's or SAM2's object masks) the object's outline is kept,
     with ``person_edges`` off (SAM2's person masks) the person's.
 
