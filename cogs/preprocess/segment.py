@@ -146,8 +146,11 @@ EDGE_RADIUS = 1.2
 (the frame's longer side / 256, the grid its person mask is predicted on before it is
 upsampled). Chosen on the synthetic video benchmark at seven settings (reference, variants
 1-5, 60 frames seed 7), where 0.8 / 1.2 / 1.6 cells raise the final human IoU by
-0.007-0.010 / 0.008-0.012 / 0.009-0.012 (eps 1e-3); the largest was not taken, for real
-frames' clutter, and the strips of the development clips were looked at with it."""
+0.007-0.009 / 0.009-0.012 / 0.009-0.012 (eps 1e-3); the largest was not taken, for real
+frames' clutter (a larger box reaches further onto other edges). On the real development
+clips (2 px at 384 px) the basketball's and loading's strips were looked at and their
+held-out PSNR measured with it (docs/experiments/2026-11-29-outlines-and-somebody-elses-face.md).
+The demo scene runs no preprocessing."""
 EDGE_EPS = 1e-3  # the guided filter's regularisation (colours in [0, 1]): 1e-2 gave the same within 0.001
 
 
