@@ -553,7 +553,6 @@ class _OtherFaces:
             if best < self.min_match:
                 continue
             dy, dx = np.unravel_index(int(np.nanargmax(score)), score.shape)
-            H, W = image.shape[:2]
             x0 = max(0, int(round(centre[0])) - 2 * ri)
             y0 = max(0, int(round(centre[1])) - 2 * ri)
             moved = np.array([x0 + dx + w / 2 - 0.5, y0 + dy + h / 2 - 0.5])
