@@ -136,9 +136,6 @@ def convex_hull(mask: np.ndarray) -> np.ndarray:
     return out > 0
 
 
-# -- GrabCut --------------------------------------------------------------------------
-
-
 # -- edges ----------------------------------------------------------------------------
 
 EDGE_RADIUS = 1.2
@@ -148,8 +145,9 @@ upsampled). Chosen on the synthetic video benchmark at seven settings (reference
 1-5, 60 frames seed 7), where 0.8 / 1.2 / 1.6 cells raise the final human IoU by
 0.007-0.009 / 0.009-0.012 / 0.009-0.012 (eps 1e-3); the largest was not taken, for real
 frames' clutter (a larger box reaches further onto other edges). On the real development
-clips (2 px at 384 px) the basketball's and loading's strips were looked at and their
-held-out PSNR measured with it (docs/experiments/2026-11-29-outlines-and-somebody-elses-face.md).
+clips (2 px at 384 px) the basketball's and loading's strips were looked at, and the
+basketball's, loading's and guitar's held-out PSNR measured with it
+(docs/experiments/2026-11-29-outlines-and-somebody-elses-face.md).
 The demo scene runs no preprocessing."""
 EDGE_EPS = 1e-3  # the guided filter's regularisation (colours in [0, 1]): 1e-2 gave the same within 0.001
 
@@ -193,7 +191,9 @@ def align_to_edges(rgb: np.ndarray, mask: np.ndarray, radius: float | None = Non
     bottle development clip the bottle's top at 40 and 49 lost 30-60 % of its pixels).
     A person's mask does without: MediaPipe's has no part that thin but the bleed along
     the outline (on the synthetic benchmark's reference video, keeping thin parts gives
-    back 0.003 of the 0.012 the filter gains on the person, 0.004 of 0.015 on the object)."""
+    back 0.003 of the 0.012 the filter gains on the person, 0.005 of 0.015 on the object)."""
+    import cv2
+
     if not mask.any():
         return mask
     H, W = mask.shape
@@ -201,8 +201,6 @@ def align_to_edges(rgb: np.ndarray, mask: np.ndarray, radius: float | None = Non
     ys, xs = np.nonzero(mask)
     y0, y1 = max(0, ys.min() - 3 * r), min(H, ys.max() + 3 * r + 1)
     x0, x1 = max(0, xs.min() - 3 * r), min(W, xs.max() + 3 * r + 1)
-    import cv2
-
     m = mask[y0:y1, x0:x1]
     aligned = guided_filter(rgb[y0:y1, x0:x1], m, r, eps) >= 0.5
     if keep_thin:
@@ -211,6 +209,9 @@ def align_to_edges(rgb: np.ndarray, mask: np.ndarray, radius: float | None = Non
     out = np.zeros_like(mask)
     out[y0:y1, x0:x1] = aligned
     return out
+
+
+# -- GrabCut --------------------------------------------------------------------------
 
 
 def grabcut(img_bgr: np.ndarray, labels: np.ndarray, rect, iterations: int, mode: int) -> None:
