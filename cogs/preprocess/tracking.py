@@ -140,8 +140,10 @@ HAND_PATH_REACH = 1.5
 # carry ended, and the box, lost behind the body a frame later, was re-found by colour on
 # the rug's edge coming into view and followed there for the clip's last 11 frames at
 # confidence 0.54-0.71 (docs/experiments/2026-11-29-a-carry-kept-by-a-loose-hand.md).
-# 0.5, 1.0 and 2.0 give the same masks on the six development clips and the synthetic video
-# at seven settings; 0.5 is the least that does.
+# Tried at 0.5, 1.0 and 2.0 on the six development clips and the synthetic video at seven
+# settings: each re-finds that box (and the 60-frame setting's, lost for 12 frames); 1.0 also
+# moves the juggled ball at 71-79 by a few pixels, 2.0 at 10-35 and the bottle's mask on the
+# floor at 11-21; 0.5 changes neither clip.
 HAND_NEAR = 0.5
 # GrabCut refining a motion fit keeps nothing on a foot (``foot_regions``) farther than this
 # share of the fitted shape's size from it (``_Tracker._off_the_feet``): a juggled ball took
