@@ -36,7 +36,9 @@ moves (``without_still_parts``: the bed inside a box drawn around a guitar), and
 every frame's mask at the end (a GrabCut outline spreading into that bed).
 
 A prompt the fingers close over (``holding_hand``) starts carried by that hand, so the
-search keeps to it and the hand cue may look there from the first frame on.
+search keeps to it and the hand cue may look there from the first frame on. A carry ends
+where the object is seen clearly away from every visible hand (``HAND_NEAR``), not where a
+loosely placed hand point merely fails the carry test.
 
 Otherwise the object is hidden and the frame's mask is empty. Then every run of empty
 frames that ends where the object was found again is tracked back into from there. A
