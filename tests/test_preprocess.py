@@ -642,6 +642,31 @@ def test_a_hand_point_off_a_clearly_seen_carried_object_does_not_end_the_carry(m
     assert (masks[3:9] & decoy).any()
 
 
+def test_a_carried_object_taken_over_by_the_other_hand_is_still_carried():
+    # As above, but the left hand comes to the object's right side and carries it from
+    # the last frame before the loss on (a handover, or the pose model swapping left and
+    # right on a body turning away): still carried, so the wall's square is not it.
+    from cogs.preprocess import tracking
+
+    images, gt, _, _, kp = _held_object_clip(T=12, hidden=tuple(range(3, 9)), speed=4, decoy=(170, 25),
+                                             decoy_colour=(235, 120, 30), decoy_from=5)
+    decoy = _square(*images.shape[1:3], 170, 25, 14)
+    T = len(images)
+    for t in range(1, T):
+        x = 40 + 4 * t + (43 if t == 1 else 38)  # 5 px off the object's right edge at 1, on it from 2 on
+        kp[t, 13] = (x + 30, 70, 1.0)  # elbow
+        kp[t, 15] = (x + 2.7, 70, 1.0)  # wrist: the hand point lands at x
+        kp[t, 17], kp[t, 19], kp[t, 21] = (x - 1.3, 68, 1.0), (x - 1.3, 72, 1.0), (x, 73, 1.0)  # pinky, index, thumb
+    kp[2, [14, 16, 18, 20, 22], 1] -= 24  # the right hand point 10 px off the object: that hand lets go
+    hands = tracking.hand_points(kp)
+    assert tracking.carrying_hand(hands, 0, 1, gt[0], gt[1]) == 1
+    assert tracking.carrying_hand(hands, 1, 2, gt[1], gt[2]) == 0  # the carry passes to the left hand
+    masks, conf = O.propagate_masks(images, gt[0], 0, kp2d=kp)
+    assert not (masks[3:9] & decoy).any()
+    for t in range(9, 12):
+        assert _iou(masks[t], gt[t]) > 0.7 and conf[t] > 0, t
+
+
 def test_a_look_alike_in_the_static_scene_is_not_taken_for_an_object_lost_for_long():
     # Out of view for 14 frames; a square of its colours hangs on the wall throughout.
     # Long after the loss no frame the pass found it in lies at the static-scene offsets,

@@ -38,7 +38,7 @@ every frame's mask at the end (a GrabCut outline spreading into that bed).
 A prompt the fingers close over (``holding_hand``) starts carried by that hand, so the
 search keeps to it and the hand cue may look there from the first frame on. A carry ends
 where the object is seen clearly away from every visible hand (``HAND_NEAR``), not where a
-loosely placed hand point merely fails the carry test.
+loosely placed hand point merely fails the carry test, nor where the other hand takes it over.
 
 Otherwise the object is hidden and the frame's mask is empty. Then every run of empty
 frames that ends where the object was found again is tracked back into from there. A
@@ -1106,7 +1106,9 @@ class _Tracker:
             st.pending = (t, st.carrier, copy.deepcopy(st), model)
         carrier = carrying_hand(self.hands, st.t, t, st.mask, f.extent) if st.t == t - direction else None
         if carrier is not None:
-            st.carried = st.carried + 1 if carrier == st.carrier else 1
+            # Passed to the other hand (or the pose model swapped left and right), it is
+            # still carried.
+            st.carried = st.carried + 1 if carrier == st.carrier or st.carried >= 2 else 1
             st.carrier = carrier
         elif f.confidence >= 0.8 and not self._near_a_hand(t, f.extent):
             st.carrier, st.carried = None, 0  # clearly seen, and away from the hands
