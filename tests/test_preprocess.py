@@ -601,6 +601,15 @@ def test_a_carried_object_that_turns_a_new_face_is_found_again_at_its_hand(perso
         assert _iou(masks[t], gt[t]) > 0.7, (t, cues)
 
 
+def _carried_out_of_view_while_a_look_alike_appears():
+    """``_held_object_clip``'s square carried for three frames, then out of view for six
+    while a square of its very colours comes into view on the far wall, then back in the
+    hand -> (images, object masks, keypoints, the look-alike's mask)."""
+    images, gt, _, _, kp = _held_object_clip(T=12, hidden=tuple(range(3, 9)), speed=4, decoy=(170, 25),
+                                             decoy_colour=(235, 120, 30), decoy_from=5)
+    return images, gt, kp, _square(*images.shape[1:3], 170, 25, 14)
+
+
 def test_an_object_lost_while_carried_is_not_refound_where_no_hand_has_been(monkeypatch):
     # Carried, then out of view for longer than the hand cue waits (the body turned with
     # it), while a square of its very colours comes into view on the far wall (the camera
@@ -608,9 +617,7 @@ def test_an_object_lost_while_carried_is_not_refound_where_no_hand_has_been(monk
     # wall out, so only the hands' path does.
     from cogs.preprocess import tracking
 
-    images, gt, _, _, kp = _held_object_clip(T=12, hidden=tuple(range(3, 9)), speed=4, decoy=(170, 25),
-                                             decoy_colour=(235, 120, 30), decoy_from=5)
-    decoy = _square(*images.shape[1:3], 170, 25, 14)
+    images, gt, kp, decoy = _carried_out_of_view_while_a_look_alike_appears()
     masks, conf = O.propagate_masks(images, gt[0], 0, kp2d=kp)
     assert not (masks[3:9] & decoy).any()
     for t in range(9, 12):  # back in the hand: found again
@@ -626,9 +633,7 @@ def test_a_hand_point_off_a_clearly_seen_carried_object_does_not_end_the_carry(m
     # object is clearly seen there, next to the hand, and is still carried.
     from cogs.preprocess import tracking
 
-    images, gt, _, _, kp = _held_object_clip(T=12, hidden=tuple(range(3, 9)), speed=4, decoy=(170, 25),
-                                             decoy_colour=(235, 120, 30), decoy_from=5)
-    decoy = _square(*images.shape[1:3], 170, 25, 14)
+    images, gt, kp, decoy = _carried_out_of_view_while_a_look_alike_appears()
     kp[2, :, 1] -= 24  # the hand point 10 px above the object's top edge
     hands = tracking.hand_points(kp)
     assert tracking.carrying_hand(hands, 1, 2, gt[1], gt[2]) is None  # the carry test alone lets go here
@@ -648,9 +653,7 @@ def test_a_carried_object_taken_over_by_the_other_hand_is_still_carried():
     # right on a body turning away): still carried, so the wall's square is not it.
     from cogs.preprocess import tracking
 
-    images, gt, _, _, kp = _held_object_clip(T=12, hidden=tuple(range(3, 9)), speed=4, decoy=(170, 25),
-                                             decoy_colour=(235, 120, 30), decoy_from=5)
-    decoy = _square(*images.shape[1:3], 170, 25, 14)
+    images, gt, kp, decoy = _carried_out_of_view_while_a_look_alike_appears()
     T = len(images)
     for t in range(1, T):
         x = 40 + 4 * t + (43 if t == 1 else 38)  # 5 px off the object's right edge at 1, on it from 2 on
