@@ -145,7 +145,7 @@ HAND_PATH_REACH = 1.5
 # Tried at 0.5, 1.0 and 2.0 on the six development clips and the synthetic video at seven
 # settings: each re-finds that box (and the 60-frame setting's, lost for 12 frames); 1.0 also
 # moves the juggled ball at 71-79 by a few pixels, 2.0 at 10-35 and the bottle's mask on the
-# floor at 11-21; 0.5 changes neither clip.
+# floor at 11-21; 0.5 changes neither clip. (The demo scene runs no preprocessing.)
 HAND_NEAR = 0.5
 # GrabCut refining a motion fit keeps nothing on a foot (``foot_regions``) farther than this
 # share of the fitted shape's size from it (``_Tracker._off_the_feet``): a juggled ball took
@@ -1051,8 +1051,7 @@ class _Tracker:
             # A pass into a gap starts where the object was found again: at a hand, it is
             # searched for where a hand has been, from its first frame on.
             st.into_gap = True
-            reach = 0.5 * float(np.sqrt(m0.sum()))
-            st.held = any(_visible(self.hands, start, h) and _distance_to(m0, self.hands[start, h, :2]) <= reach for h in (0, 1))
+            st.held = self._near_a_hand(start, m0, 0.5 * float(np.sqrt(m0.sum())))
 
         def undo(st: _State, t_end: int) -> tuple[_State, ColourModel]:
             """Drop a tentative hand find and what followed it, up to frame t_end."""
@@ -1110,7 +1109,7 @@ class _Tracker:
             # still carried.
             st.carried = st.carried + 1 if carrier == st.carrier or st.carried >= 2 else 1
             st.carrier = carrier
-        elif f.confidence >= 0.8 and not self._near_a_hand(t, f.extent):
+        elif f.confidence >= 0.8 and not self._near_a_hand(t, f.extent, HAND_NEAR * float(mask_stats(f.extent)[1].max())):
             st.carrier, st.carried = None, 0  # clearly seen, and away from the hands
         c, s = mask_stats(f.visible)
         st.velocity = 0.5 * st.velocity + 0.5 * (c - st.centre) / (st.lost + 1)
@@ -1126,12 +1125,11 @@ class _Tracker:
         self.bank.add(t, f.visible)
         return self._adapted(t, f.visible)
 
-    def _near_a_hand(self, t: int, mask: np.ndarray) -> bool:
-        """Whether a visible hand in frame t lies within ``HAND_NEAR`` x the object's size of ``mask``."""
+    def _near_a_hand(self, t: int, mask: np.ndarray, reach: float) -> bool:
+        """Whether a visible hand in frame t lies within ``reach`` pixels of ``mask``."""
         if self.hands is None or not mask.any():
             return False
-        size = float(mask_stats(mask)[1].max())
-        return any(_visible(self.hands, t, h) and _distance_to(mask, self.hands[t, h, :2]) <= HAND_NEAR * size for h in (0, 1))
+        return any(_visible(self.hands, t, h) and _distance_to(mask, self.hands[t, h, :2]) <= reach for h in (0, 1))
 
     def _background_off(self, mask: np.ndarray, frames: tuple[int, ...]) -> np.ndarray:
         """Pixels that can only be static scene: away from ``mask`` (7 px and more) and off
