@@ -7,7 +7,10 @@ public repositories; they are never part of this project): DIR holds ``juggle.mp
 ``backpack.mp4``, ``bottle.webm``, ``guitar.webm``, ``loading/`` (the top-left 640x360
 quadrant of SLAHMR's composite ``loading.mp4``, one PNG per frame; it keeps the
 composite's "Input View" label, which a crop below it would take with the loader's head) and
-``basketball_dribble.mp4``. A missing clip is skipped and reported as such.
+``basketball_dribble.mp4``; and one clip the README does not list, ``tennis/`` (the same
+crop of ``media/davis/tennis.mp4`` on the same repository's gh-pages branch, 139 frames: a
+player swings a white racket in front of his white shirt, the case issue 27 was filed on).
+A missing clip is skipped and reported as such.
 
 Each clip is preprocessed (``cogs preprocess``, in a subprocess, so a failure is the
 command's own message) with the prompts a user would draw: a box on the object on one
@@ -44,6 +47,7 @@ CLIPS = {
     "bottle": ("bottle.webm", ["--stride", "2", "--object-box", "0", "370", "925", "410", "1020"]),
     "guitar": ("guitar.webm", ["--stride", "2", "--object-box", "0", "270", "330", "810", "590"]),
     "loading": ("loading", ["--object-box", "12", "280", "145", "415", "240", "--person-box", "0", "330", "90", "530", "360"]),
+    "tennis": ("tennis", ["--object-box", "0", "258", "160", "322", "188"]),
 }
 # The box a user adds (`--second-prompt`) where the first prompt's track leaves the
 # object in the strip: the TV box's front face once it is tilted towards the camera (the

@@ -808,6 +808,48 @@ def test_a_track_along_the_arm_does_not_supervise_the_object():
     assert not on_forearm(masks, kp)[-1] and (conf[1:] <= UNCLEAR_CONFIDENCE).all(), conf
 
 
+def _disc_past_a_person(shirt):
+    """_object_clip's disc passing the person, the person's mask taking the disc in where it
+    is in front (as MediaPipe's takes a held racket in), the upper body in ``shirt``."""
+    images, gt, person = _object_clip(T=8)
+    H, W = gt.shape[1:]
+    yy, xx = np.mgrid[:H, :W]
+    upper = (np.abs(xx - 80) < 30) & (yy > 20) & (yy <= 34)  # shoulders and arms
+    bar = (np.abs(xx - 80) < 12) & (yy > 20) | upper
+    for t in range(len(images)):
+        images[t][upper & ~gt[t]] = shirt
+    probs = np.stack([(bar | (gt[t] & ((bar & gt[t]).sum() >= 0.5 * gt[t].sum()))) for t in range(len(images))])
+    return images, gt, (probs * 255).astype(np.uint8)
+
+
+def test_an_object_coloured_like_the_persons_clothes_is_looked_for_off_the_person_only():
+    # A white racket in front of a white shirt: where the object's colours are the person's,
+    # nothing tells the two apart on the person, so the tracker looks for the object off the
+    # person only. The disc is marked lost while in front of the person (instead of a mask
+    # that might be the shirt) and found again beyond it. The same disc past a person
+    # dressed in other colours is followed across the person.
+    from cogs.preprocess.tracking import LIKE_PERSON_SHARE
+
+    on, off = (4, 5), (1, 2, 6, 7)  # the disc in front of the person on frames 4-5, a third of it on 3
+    like, unlike = {}, {}
+    images, gt, probs = _disc_past_a_person(shirt=(235, 120, 30))
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=probs, like_person=like)
+    assert like[0] >= LIKE_PERSON_SHARE, like
+    assert all(not masks[t].any() and conf[t] == 0 for t in on), conf
+    assert all(_iou(masks[t], gt[t]) > 0.8 and conf[t] > 0 for t in off), ([_iou(masks[t], gt[t]) for t in off], conf)
+    assert (masks[3] & gt[3]).sum() >= 0.9 * masks[3].sum() > 0  # the part off the person
+    images, gt, probs = _disc_past_a_person(shirt=(40, 160, 200))
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=probs, like_person=unlike)
+    assert unlike[0] < LIKE_PERSON_SHARE, unlike
+    assert all(_iou(masks[t], gt[t]) > 0.8 and conf[t] >= 0.5 for t in range(8)), conf
+    from cogs.preprocess.prompts import parse_prompts, person_lookalike_warning
+
+    prompt = parse_prompts((0, 10, 20, 30, 40), None, None)[0][0]
+    assert person_lookalike_warning(prompt, unlike[0]) is None
+    text = person_lookalike_warning(prompt, like[0])
+    assert "--object-box 0 10 20 30 40" in text and "frame 0" in text and "--sam2-checkpoint" in text
+
+
 def test_a_piece_grabcut_cuts_out_of_a_refound_object_yields_to_the_whole_window(monkeypatch):
     # On the basketball clip GrabCut re-found a dribbled ball as one panel between its
     # seams, the rest of the ball all round it. That GrabCut failure is forced here (only

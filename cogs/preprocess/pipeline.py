@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
 PERSONS_VERSION = 6  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body; 5: bodies laid on a hand dropped; 6: a followed person never takes somebody else's face)
-TRACKER_VERSION = 16  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into; 9: the static scene judged after a long loss too; 10: an object lost while carried searched for where a hand has been; 11: GrabCut's spread onto a foot dropped; 12: doubtful runs tracked again from their other side; 13: a foot seen end-on sized from its shin; 14: a mask's parts that hold still with the room while the rest moves left out; 15: a clear view next to a hand does not end a carry; 16: nor does the other hand taking it over): bumping it redoes the object masks (and what reads them)
+TRACKER_VERSION = 17  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into; 9: the static scene judged after a long loss too; 10: an object lost while carried searched for where a hand has been; 11: GrabCut's spread onto a foot dropped; 12: doubtful runs tracked again from their other side; 13: a foot seen end-on sized from its shin; 14: a mask's parts that hold still with the room while the rest moves left out; 15: a clear view next to a hand does not end a carry; 16: nor does the other hand taking it over; 17: an object coloured like the person is not trusted on the person): bumping it redoes the object masks (and what reads them)
 SFM_VERSION = 4  # of the cameras step (2: COLMAP's two-view RANSAC seeded, its features extracted and bundles adjusted on one thread; 3: without parallax, COLMAP's rotations or the homography chain, whichever explains the background better; 4: features matched exactly by us, so the same frames give the same cameras): bumping it redoes the cameras
 MASKS_VERSION = 8  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly; 7: a mask's specks left out of its solidity; 8: the person's and the object's outlines moved onto the frame's edges): bumping it redoes the masks step
 BODY_VERSION = 6  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it; 5: the ground only where a foot is seen; 6: that scale taken from 5 % explained, not 20 %): bumping it redoes the body step
@@ -534,7 +534,7 @@ class _Runner:
             update(T)
         else:
             from cogs.preprocess.prompts import (box_mask, guessed_prompt_warning, lookalike_prompt_warning, lost_stretch_warning,
-                                                 small_prompt_warning, untrusted_stretches)
+                                                 person_lookalike_warning, small_prompt_warning, untrusted_stretches)
 
             scaled = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.positives]
             scaled_neg = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.negatives]
@@ -561,14 +561,15 @@ class _Runner:
                     if small:
                         log.warning("%s", small)
                 lookalike: dict[int, float] = {}
+                like_person: dict[int, float] = {}
                 still: dict[int, int] = {}
                 masks, conf = O.propagate_masks(images, list(prompts.values()), list(prompts), human_probs=pe["probs"], kp2d=pe["kp2d"],
                                                 negatives=negative, cues=cues, sources=sources, lookalike=lookalike, still=still,
-                                                on_frame=lambda n: update(n))
+                                                like_person=like_person, on_frame=lambda n: update(n))
                 for p in self.positives:
-                    text = lookalike_prompt_warning(p, lookalike[p.frame])
-                    if text:
-                        log.warning("%s", text)
+                    for text in (lookalike_prompt_warning(p, lookalike[p.frame]), person_lookalike_warning(p, like_person[p.frame])):
+                        if text:
+                            log.warning("%s", text)
                 text = lost_stretch_warning(untrusted_stretches(conf, min_confidence), T)
                 if text:
                     log.warning("%s", text)

@@ -212,6 +212,20 @@ def lookalike_prompt_warning(prompt: BoxPrompt, share: float) -> str | None:
             f"{POSITIVE} on a later frame, or give --sam2-checkpoint")
 
 
+def person_lookalike_warning(prompt: BoxPrompt, share: float) -> str | None:
+    """The warning for an object prompt whose colours are the person's clothes' (``share``
+    of the person's pixels look like it: see ``tracking.propagate_masks``'s
+    ``like_person``), or None below ``tracking.LIKE_PERSON_SHARE``."""
+    from cogs.preprocess.tracking import LIKE_PERSON_SHARE
+
+    if share < LIKE_PERSON_SHARE:
+        return None
+    return (f"{prompt.option} {prompt.text}: {share:.0%} of the person on frame {prompt.frame} has the object's colours "
+            "(a white racket and a white shirt); the classical tracker cannot tell them apart, so it looks for the "
+            "object only off the person and marks it lost where it is in front of the person: add an "
+            f"{POSITIVE} where it stands clear of the person, or give --sam2-checkpoint")
+
+
 def guessed_prompt_warning(prompt: BoxPrompt) -> str:
     """The warning for an object prompt in whose box GrabCut found nothing standing out
     (``segment.grabcut_box``'s ``guessed``): the box's inscribed ellipse is tracked
