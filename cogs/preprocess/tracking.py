@@ -1252,18 +1252,18 @@ class _Tracker:
         hands_t = None if self.hands is None else self.hands[t]
         maps = self._static_and_moving(t, direction)
         if maps is None:
-            static, moving = np.zeros((H, W), bool), np.zeros((H, W), bool)
             # No frame at the offsets found it (lost for a while): the last one that did
             # still keeps the static scene out of the colour search below (a look-alike
-            # painting on the wall); the other cues go on without a static scene.
+            # painting on the wall); the other cues go on without a static scene, except
+            # for an object coloured like the person, lost in front of the person rather
+            # than hidden: what moves at a hand is judged against that last view.
             seen = self._static_and_moving(t, direction, last=True)
             if seen is not None:
                 prob_search[seen[0]] = 0.0
-            if seen is not None and self.colours_of_person:
-                # Lost in front of the person rather than hidden: what moves at a hand is
-                # judged against the last view of the scene that found it.
-                maps = seen
-                static, moving = seen[0], seen[1] & (hp <= 0.5) & ~hands
+                if self.colours_of_person:
+                    maps = seen
+        if maps is None:
+            static, moving = np.zeros((H, W), bool), np.zeros((H, W), bool)
         else:
             static, moving = maps
             # What moved and is not the person (nor a hand) is the object, whatever its colour.
