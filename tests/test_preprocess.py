@@ -621,6 +621,26 @@ def test_a_carried_object_turned_to_other_colours_is_followed_where_it_moves(mon
     assert _iou(masks[7], gt[7]) > 0.9 and not masks[8:].any()
 
 
+def test_a_carried_object_back_in_view_is_judged_against_the_frames_it_was_lost_in(monkeypatch):
+    # Carried, out of view for three frames, during which the camera's exposure jumps by 40
+    # grey levels, then back with a face in the background's colours. Against the frames
+    # that found it (4 and 8 back) every pixel differs: the residual noise is far above a
+    # working warp's, everything would be called static scene, the object too, and nothing
+    # finds it. The frames it was lost in show the scene as it now looks.
+    from cogs.preprocess import tracking
+
+    images, gt, _, person, kp = _held_object_clip(T=14, new_face_from=11, hidden=(8, 9, 10), speed=3)
+    images = np.clip(images.astype(np.int16) + 40 * (np.arange(14) >= 8)[:, None, None, None], 0, 255).astype(np.uint8)
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp)
+    assert not masks[8:11].any()
+    assert _iou(masks[11], gt[11]) > 0.9
+    for t in (12, 13):
+        assert _iou(masks[t], gt[t]) > 0.7 and conf[t] > 0, t
+    monkeypatch.setattr(tracking, "LOST_REFS", 100)  # only the frames that found it: lost for good
+    masks, _ = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp)
+    assert not masks[11:].any()
+
+
 def _carried_out_of_view_while_a_look_alike_appears():
     """``_held_object_clip``'s square carried for three frames, then out of view for six
     while a square of its very colours comes into view on the far wall, then back in the
