@@ -1133,13 +1133,15 @@ class _Tracker:
     # -- passes -----------------------------------------------------------------------
 
     def run(self, start: int, direction: int, masks: np.ndarray, conf: np.ndarray, cues: list, fill: bool = False, on_frame=None,
-            stop: int | None = None, from_prompt: bool = False) -> None:
+            stop: int | None = None) -> None:
         """Track from frame ``start`` (its mask known) towards ``direction`` (+1 or -1),
         writing ``masks``, ``conf`` and ``cues`` in place, up to the clip's end or frame
         ``stop`` (not included). ``fill``: only into empty frames, stopping at the first
-        frame already found or where the object is lost. ``from_prompt``: ``start`` is a
-        prompt's frame (the passes from it share what they learn of its carrying hand)."""
+        frame already found or where the object is lost. The passes from a prompt's frame
+        share what they learn of its carrying hand (``carried_from``); the others (into a
+        gap, or back from a clear find) never start on one."""
         T = len(self.images)
+        from_prompt = not fill and start in self.prompts
         if masks is not self.masks:
             self._scene_maps = {}  # judged against another pass's frames
         self.masks = masks
@@ -1623,7 +1625,7 @@ def propagate_masks(
             m, c, cu, w = np.zeros((T, H, W), bool), np.zeros(T), [""] * T, np.full(T, direction)
             m[k], c[k], cu[k] = prompts[k], 1.0, "prompt"
             tracker.use(k)
-            tracker.run(k, direction, m, c, cu, stop=stop, on_frame=tick, from_prompt=True)
+            tracker.run(k, direction, m, c, cu, stop=stop, on_frame=tick)
             fill_gaps(m, c, cu, k, direction, stop, w)
             passes.append((m, c, cu, w))
         (ma, ca, cua, wa), (mb, cb, cub, wb) = passes
@@ -1638,7 +1640,7 @@ def propagate_masks(
     # Before the first prompt and after the last: that prompt's pass, as with one prompt.
     for k, direction in ((frames[-1], +1), (frames[0], -1)):
         tracker.use(k)
-        tracker.run(k, direction, masks, conf, found, on_frame=tick, from_prompt=True)
+        tracker.run(k, direction, masks, conf, found, on_frame=tick)
     for k, direction in ((frames[-1], +1), (frames[0], -1)):
         tracker.use(k)
         fill_gaps(masks, conf, found, k, direction, T if direction > 0 else -1, way)
