@@ -2094,6 +2094,72 @@ def test_object_fit_turns_a_carried_box_with_the_forearm_that_holds_it():
     assert (carried_by < 0).all() and np.allclose(out, R_true)
 
 
+def _carried_box(T=16, H=240, W=320):
+    """The scene of the test above: a box at rest for six frames while the camera circles
+    it, then carried and turned by a forearm: (masks, K, w2c, hand, root, forearms, true
+    rotations, true centres, resting frames)."""
+    from cogs.preprocess.objectfit import cuboid_points, silhouette
+
+    K = S.intrinsics(W, H, 400.0)
+    w2c = _circling(T)
+    R_box = _rot_about(np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]), 40.0) @ _rot(0, 30.0)
+    rest = np.arange(T) < 6
+    forearm = np.stack([_rot_about(np.array([0.2, 0.0, 1.0]) / np.hypot(0.2, 1.0), 30.0 * max(t - 5, 0)) for t in range(T)])
+    R_true = np.einsum("tij,jk->tik", forearm, R_box)
+    centres = np.array([[0.2, 0.0, 0.9 + 0.05 * max(t - 5, 0)] for t in range(T)])
+    half = np.array([0.15, 0.10, 0.06])
+    masks = np.stack([silhouette((cuboid_points(half) @ R_true[t].T + centres[t]) @ w2c[t, :3, :3].T + w2c[t, :3, 3], K, (H, W))
+                      for t in range(T)])
+    hand = np.where(rest[:, None, None], np.array([-0.8, 0.0, 1.6]), centres[:, None, :] + [0.0, 0.0, 0.05])
+    return masks, K, w2c, np.repeat(hand, 4, axis=1), np.tile([-0.5, 0.3, 0.9], (T, 1)), np.stack([forearm, forearm], 1), R_true, centres, rest
+
+
+def test_a_box_at_rest_tracked_with_middling_confidence_still_anchors_its_carry():
+    # Found again with faces the prompt never showed, a box on the table keeps a middling
+    # confidence (0.37 on the synthetic video benchmark's variant 1, at 0.97 IoU): trusted,
+    # so its rest is measured and its rotation there anchors the carry that follows.
+    from cogs.preprocess.objectfit import fit_object
+
+    masks, K, w2c, hand, root, forearms, R_true, _, rest = _carried_box()
+    T = len(masks)
+    confidence = np.where(rest, 0.37, 0.3)
+    ground = (np.array([0.0, 0.0, 1.0]), 0.0)
+    fit = fit_object(masks, confidence, K, w2c, hand, root, ground=ground, forearm_world=forearms)
+    assert fit.depth_source[:6] == ["rest"] * 6
+    assert fit.carried.tolist() == (~rest).tolist()
+    angle = lambda A, B: np.degrees(np.arccos(np.clip((np.einsum("tij,tij->t", A, B) - 1) / 2, -1, 1)))
+    rel = lambda Rs: np.einsum("tij,kj->tik", Rs, Rs[0])
+    err = angle(rel(fit.track.rotation_matrices()), rel(R_true))
+    # (the rest's last frame, weighted by its confidence, is pulled towards the turn by the
+    # smoother: 13 degrees)
+    assert err[~rest].max() < 12.0 and err.max() < 15.0, err.round(1)
+    # Below the bar that supervises the object branch, a mask says too little for a rest.
+    fit = fit_object(masks, np.where(rest, 0.15, 0.3), K, w2c, hand, root, ground=ground, forearm_world=forearms)
+    assert "rest" not in fit.depth_source and not fit.carried.any()
+
+
+def test_a_doubted_mask_away_from_the_hands_does_not_pull_the_object_there():
+    # While the box is carried the track slides onto a look-alike lying on the floor across
+    # the room, and the tracker doubts it (confidence 0.07): the carried box stays with the
+    # forearm and hand that hold it instead of being placed on the floor.
+    from cogs.preprocess.objectfit import cuboid_points, fit_object, silhouette
+
+    masks, K, w2c, hand, root, forearms, _, centres, rest = _carried_box()
+    T, H, W = masks.shape
+    decoy = np.array([-0.6, 0.5, 0.1])
+    corners = cuboid_points(np.array([0.15, 0.10, 0.06])) + decoy
+    masks[12:] = np.stack([silhouette(corners @ w2c[t, :3, :3].T + w2c[t, :3, 3], K, (H, W)) for t in range(12, T)])
+    confidence = np.where(rest, 1.0, np.where(np.arange(T) < 12, 0.3, 0.07))
+    ground = (np.array([0.0, 0.0, 1.0]), 0.0)
+    fit = fit_object(masks, confidence, K, w2c, hand, root, ground=ground, forearm_world=forearms)
+    off = np.linalg.norm(fit.track.translations - centres, axis=1)
+    assert off[12:].max() < 0.25, off.round(2)
+    assert fit.carried[12:].all()
+    # Trusted as they are (the bar at 0), the masks would put it on the floor.
+    fit = fit_object(masks, confidence, K, w2c, hand, root, ground=ground, forearm_world=forearms, trusted=0.0)
+    assert np.linalg.norm(fit.track.translations - centres, axis=1)[12:].mean() > 0.75
+
+
 def test_a_hidden_carried_object_moves_with_the_hand_that_holds_it():
     # Out of sight for six frames while the hand swings it towards the camera on an arc and
     # the forearm turns: between its last and next sighting it goes where the hand takes it,

@@ -40,7 +40,7 @@ TRACKER_VERSION = 19  # of the classical object tracker (5: a prompt in a hand s
 SFM_VERSION = 4  # of the cameras step (2: COLMAP's two-view RANSAC seeded, its features extracted and bundles adjusted on one thread; 3: without parallax, COLMAP's rotations or the homography chain, whichever explains the background better; 4: features matched exactly by us, so the same frames give the same cameras): bumping it redoes the cameras
 MASKS_VERSION = 8  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly; 7: a mask's specks left out of its solidity; 8: the person's and the object's outlines moved onto the frame's edges): bumping it redoes the masks step
 BODY_VERSION = 6  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it; 5: the ground only where a foot is seen; 6: that scale taken from 5 % explained, not 20 %): bumping it redoes the body step
-OBJECT_POSE_VERSION = 7  # of the initial object trajectory (`objectfit.py`; 7: an object lost for good while carried stays in the hand to the clip's end, one first seen carried was in it from the start): bumping it redoes the object_pose step
+OBJECT_POSE_VERSION = 8  # of the initial object trajectory (`objectfit.py`; 8: doubted masks away from the hands left out, trusted ones may rest; 7: an object lost for good while carried stays in the hand to the clip's end, one first seen carried was in it from the start): bumping it redoes the object_pose step
 STEPS = ["frames", "persons", "objects", "cameras", "body", "masks", "object_pose", "planes", "scene"]
 
 
@@ -738,6 +738,7 @@ class _Runner:
         import torch
 
         from cogs.body import load_body_model
+        from cogs.branches.object import ObjectConfig
         from cogs.preprocess.objectfit import fit_object
 
         masks = ob["masks"].astype(bool)
@@ -755,7 +756,8 @@ class _Runner:
         forearms = np.stack([A[:, model.bone_index(f"lowerarm01.{side}")] for side in "LR"], axis=1)
         fit = fit_object(masks, ob["confidence"], K, bo["world_to_camera"], bo["hand_joints"].astype(np.float64),
                          bo["root"].astype(np.float64), human_masks=human_masks, ground=(np.array([0.0, 0.0, 1.0]), 0.0),
-                         images=images, carrier_world=root, forearm_world=forearms, on_frame=lambda k: update(k))
+                         images=images, carrier_world=root, forearm_world=forearms, trusted=ObjectConfig().min_confidence,
+                         on_frame=lambda k: update(k))
         stats = {"proxy": fit.kind, "radii_m": fit.radii_m.tolist(), "mean_iou": float(np.nanmean(fit.iou)), "depth_source": fit.depth_source}
         return {"quats": fit.track.quats, "translations": fit.track.translations, "centre": fit.track.centre,
                 "radii": fit.radii_m, "kind": np.array(fit.kind), "iou": fit.iou, "carried": fit.carried}, {
