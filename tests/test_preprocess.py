@@ -2121,7 +2121,6 @@ def test_a_box_at_rest_tracked_with_middling_confidence_still_anchors_its_carry(
     from cogs.preprocess.objectfit import fit_object
 
     masks, K, w2c, hand, root, forearms, R_true, _, rest = _carried_box()
-    T = len(masks)
     confidence = np.where(rest, 0.37, 0.3)
     ground = (np.array([0.0, 0.0, 1.0]), 0.0)
     fit = fit_object(masks, confidence, K, w2c, hand, root, ground=ground, forearm_world=forearms)
