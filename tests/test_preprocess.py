@@ -2054,48 +2054,8 @@ def test_fill_rotations_turns_a_hidden_held_object_with_its_carrier():
     assert np.allclose(out[0], truth[1]) and np.allclose(out[-1], truth[-2])
 
 
-def test_object_fit_turns_a_carried_box_with_the_forearm_that_holds_it():
-    # A box rests (the camera circling it), then a hand takes it and the forearm turns it
-    # 30 degrees a frame while lifting it, partly hidden by the hand (low confidence) and
-    # out of sight for three frames: the silhouettes cannot follow that, the forearm can.
-    # Its rotation at rest is the anchor: the box then keeps its grasp on the forearm.
-    from cogs.preprocess.objectfit import carry_in_hand, cuboid_points, fit_object, silhouette
-
-    T, H, W = 16, 240, 320
-    K = S.intrinsics(W, H, 400.0)
-    w2c = _circling(T)
-    R_box = _rot_about(np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]), 40.0) @ _rot(0, 30.0)
-    rest = np.arange(T) < 6
-    forearm = np.stack([_rot_about(np.array([0.2, 0.0, 1.0]) / np.hypot(0.2, 1.0), 30.0 * max(t - 5, 0)) for t in range(T)])
-    R_true = np.einsum("tij,jk->tik", forearm, R_box)
-    centres = np.array([[0.2, 0.0, 0.9 + 0.05 * max(t - 5, 0)] for t in range(T)])
-    half = np.array([0.15, 0.10, 0.06])
-    masks = np.stack([silhouette((cuboid_points(half) @ R_true[t].T + centres[t]) @ w2c[t, :3, :3].T + w2c[t, :3, 3], K, (H, W))
-                      for t in range(T)])
-    masks[9:12] = False
-    confidence = np.where(rest, 1.0, 0.3)
-    hand = np.where(rest[:, None, None], np.array([-0.8, 0.0, 1.6]), centres[:, None, :] + [0.0, 0.0, 0.05])
-    hand = np.repeat(hand, 4, axis=1)
-    root = np.tile([-0.5, 0.3, 0.9], (T, 1))
-    fit = fit_object(masks, confidence, K, w2c, hand, root, ground=(np.array([0.0, 0.0, 1.0]), 0.0),
-                     forearm_world=np.stack([forearm, forearm], 1))
-    R = fit.track.rotation_matrices()
-    # The box's symmetric twins (half-turns about its axes) have the same silhouettes: the
-    # rotation is compared as it is, not up to them.
-    angle = lambda A, B: np.degrees(np.arccos(np.clip((np.einsum("tij,tij->t", A, B) - 1) / 2, -1, 1)))
-    rel = lambda Rs: np.einsum("tij,kj->tik", Rs, Rs[0])  # since the first frame (the world's own rotation is free)
-    err = angle(rel(R), rel(R_true))
-    assert err.max() < 12.0, err.round(1)
-    assert fit.carried.tolist() == (~rest).tolist()  # from the grasp on, the hidden frames too
-    # carry_in_hand itself: a stretch without an anchor either side is left as it is.
-    held = ~rest
-    out, carried_by = carry_in_hand(R_true, np.ones(T, bool), held, np.zeros(T, int), np.stack([forearm, forearm], 1),
-                                    np.zeros(T, bool))
-    assert (carried_by < 0).all() and np.allclose(out, R_true)
-
-
 def _carried_box(T=16, H=240, W=320):
-    """The scene of the test above: a box at rest for six frames while the camera circles
+    """A box at rest for six frames while the camera circles
     it, then carried and turned by a forearm: (masks, K, w2c, hand, root, forearms, true
     rotations, true centres, resting frames)."""
     from cogs.preprocess.objectfit import cuboid_points, silhouette
@@ -2112,6 +2072,32 @@ def _carried_box(T=16, H=240, W=320):
                       for t in range(T)])
     hand = np.where(rest[:, None, None], np.array([-0.8, 0.0, 1.6]), centres[:, None, :] + [0.0, 0.0, 0.05])
     return masks, K, w2c, np.repeat(hand, 4, axis=1), np.tile([-0.5, 0.3, 0.9], (T, 1)), np.stack([forearm, forearm], 1), R_true, centres, rest
+
+
+def test_object_fit_turns_a_carried_box_with_the_forearm_that_holds_it():
+    # A box rests (the camera circling it), then a hand takes it and the forearm turns it
+    # 30 degrees a frame while lifting it, partly hidden by the hand (low confidence) and
+    # out of sight for three frames: the silhouettes cannot follow that, the forearm can.
+    # Its rotation at rest is the anchor: the box then keeps its grasp on the forearm.
+    from cogs.preprocess.objectfit import carry_in_hand, fit_object
+
+    masks, K, w2c, hand, root, forearms, R_true, _, rest = _carried_box()
+    T = len(masks)
+    masks[9:12] = False
+    confidence = np.where(rest, 1.0, 0.3)
+    fit = fit_object(masks, confidence, K, w2c, hand, root, ground=(np.array([0.0, 0.0, 1.0]), 0.0), forearm_world=forearms)
+    R = fit.track.rotation_matrices()
+    # The box's symmetric twins (half-turns about its axes) have the same silhouettes: the
+    # rotation is compared as it is, not up to them.
+    angle = lambda A, B: np.degrees(np.arccos(np.clip((np.einsum("tij,tij->t", A, B) - 1) / 2, -1, 1)))
+    rel = lambda Rs: np.einsum("tij,kj->tik", Rs, Rs[0])  # since the first frame (the world's own rotation is free)
+    err = angle(rel(R), rel(R_true))
+    assert err.max() < 12.0, err.round(1)
+    assert fit.carried.tolist() == (~rest).tolist()  # from the grasp on, the hidden frames too
+    # carry_in_hand itself: a stretch without an anchor either side is left as it is.
+    held = ~rest
+    out, carried_by = carry_in_hand(R_true, np.ones(T, bool), held, np.zeros(T, int), forearms, np.zeros(T, bool))
+    assert (carried_by < 0).all() and np.allclose(out, R_true)
 
 
 def test_a_box_at_rest_tracked_with_middling_confidence_still_anchors_its_carry():
