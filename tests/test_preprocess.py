@@ -1044,6 +1044,54 @@ def test_a_resting_object_whose_mask_is_known_is_not_taken_for_static_scene():
     assert np.isnan(scene.residual(2, [(0, box[0])])[box[2]]).all()  # known: no verdict on it
 
 
+def test_masks_grow_and_shrink_by_round_discs_of_any_size():
+    import cv2
+
+    from cogs.preprocess.segment import LARGE_DISC, grown, shrunk
+
+    H, W = 300, 400
+    yy, xx = np.mgrid[:H, :W]
+    point = np.zeros((H, W), bool)
+    point[150, 200] = True
+    square = np.zeros((H, W), bool)
+    square[20:280, 60:340] = True
+    for r in (3, 40, LARGE_DISC, LARGE_DISC + 1, 125):
+        euclid = (yy - 150) ** 2 + (xx - 200) ** 2 <= r * r
+        if r <= LARGE_DISC:  # OpenCV's digital ellipse, as measured
+            ellipse = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+            assert (grown(point, r) == (cv2.dilate(point.astype(np.uint8), ellipse) > 0)).all()
+            assert (shrunk(square, r) == (cv2.erode(square.astype(np.uint8), ellipse) > 0)).all()
+        else:  # the exact disc, at a cost that does not grow with it
+            assert (grown(point, r) == euclid).all()
+            inner = shrunk(square, r)
+            assert inner.sum() == (260 - 2 * r) * (280 - 2 * r) and inner[20 + r : 280 - r, 60 + r : 340 - r].all()
+        assert abs(int(grown(point, r).sum()) - int(euclid.sum())) <= 4 * r  # round either way: along the outline
+        assert shrunk(np.ones((H, W), bool), r).all()  # the frame's border is not outside
+        assert not grown(np.zeros((H, W), bool), r).any()
+
+
+def test_the_static_scene_keeps_a_known_objects_size_away_from_it():
+    """Static pixels stay off a known object by its size (a missed face of it must not turn
+    into scenery), for an object filling much of the frame as for a small one, and no
+    farther."""
+    import cv2
+
+    from cogs.preprocess.background import StaticScene
+
+    H, W = 270, 480
+    images = np.zeros((2, H, W, 3), np.uint8)
+    scene = StaticScene(images, np.zeros((2, H, W), np.uint8), None)
+    for x0, y0, w, h in ((200, 120, 16, 10), (40, 60, 240, 130)):
+        obj = np.zeros((H, W), bool)
+        obj[y0 : y0 + h, x0 : x0 + w] = True
+        free = scene.static_pixels(0, obj)
+        far = cv2.distanceTransform((~obj).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        size = max(w, h) - 1  # the mask's extent in pixels
+        assert not free[far <= size].any()
+        assert free[far > size + 1].all()
+        assert free.sum() < (far > 0.5 * size).sum()  # farther than half its size
+
+
 def _prompt_with_a_still_patch(object_speed):
     """13 frames of a camera panning past a textured room (2 px a frame), a bluish textured
     square moving ``object_speed`` (x, y) pixels a frame and, touching it in frame 0, a

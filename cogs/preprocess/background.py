@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from cogs.preprocess.segment import grown
+
 
 def person_free(person_prob: np.ndarray, margin: int) -> np.ndarray:
     """Pixels clear of the person -> [H, W] bool: MediaPipe's probability ``person_prob``
@@ -114,21 +116,19 @@ class StaticScene:
 
     def static_pixels(self, u: int, object_mask: np.ndarray | None) -> np.ndarray:
         """Frame u's pixels that show the static scene as far as is known -> [H, W] bool:
-        off the person and off the object (``object_mask``, where known), by half the
-        object's size: a tracked mask that missed a face of a resting object must not
-        make that face static scene for every later frame."""
-        import cv2
-
+        off the person and off the object (``object_mask``, where known), by the object's
+        size: a tracked mask that missed a face of a resting object must not make that
+        face static scene for every later frame."""
         free = person_free(self.person_probs[u], self.margin)
         if object_mask is not None and object_mask.any():
             H, W = object_mask.shape
             ys, xs = np.nonzero(object_mask)
             r = max(self.margin, int(1.0 * max(np.ptp(xs), np.ptp(ys))))
-            # Dilated in a window around the object: a large kernel over a whole frame is slow.
+            # Within r of the object, in a window around it (``grown``: a disc as large as
+            # a guitar across a 960 px frame is a distance transform, not a dilation).
             x0, y0 = max(0, xs.min() - r - 1), max(0, ys.min() - r - 1)
             x1, y1 = min(W, xs.max() + r + 2), min(H, ys.max() + r + 2)
-            k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
-            free[y0:y1, x0:x1] &= ~(cv2.dilate(object_mask[y0:y1, x0:x1].astype(np.uint8), k) > 0)
+            free[y0:y1, x0:x1] &= ~grown(object_mask[y0:y1, x0:x1], r)
         return free
 
     def residual(self, t: int, refs: list[tuple[int, np.ndarray | None]]) -> np.ndarray:

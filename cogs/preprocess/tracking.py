@@ -79,6 +79,7 @@ from cogs.preprocess.segment import (
     grabcut_at_hand,
     grabcut_from_seed,
     grabcut_with_seeds,
+    grown,
     iou,
     largest_component_near,
     mask_stats,
@@ -1014,13 +1015,10 @@ class _Tracker:
         """The object's colours against its surroundings (a band of 0.4 x its size around
         it, hands and all) in the last frame it was found; the person's colours weigh in
         as in the prompt's model."""
-        import cv2
-
         r = max(8, int(0.4 * float(st.size.max())))
-        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         x0, y0, x1, y1 = window(st.mask, 1.0)
         band = np.zeros_like(st.mask)
-        band[y0:y1, x0:x1] = cv2.dilate(st.mask[y0:y1, x0:x1].astype(np.uint8), k) > 0
+        band[y0:y1, x0:x1] = grown(st.mask[y0:y1, x0:x1], r)
         return ColourModel.fit(self.images[st.t], st.visible, band & ~st.visible, self.distractors)
 
     def _static_and_moving(self, t: int, direction: int, last: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
