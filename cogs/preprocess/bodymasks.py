@@ -57,7 +57,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from cogs.preprocess.segment import align_to_edges, solidity
+from cogs.preprocess.segment import align_to_edges, grown, solidity
 
 BINS = 16  # per channel, for the colour models
 MAX_FIT_ERROR = 0.1
@@ -193,8 +193,8 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
     r_in = max(2, round(0.15 * size))
     r_out = max(r_in + 3, round(MOTION_REACH * size))
     core = cv2.erode(o8, _disk(2)) > 0
-    near = cv2.dilate(o8, _disk(r_out)) > 0
-    ring = near & ~(cv2.dilate(o8, _disk(r_in)) > 0) & person & ~arm
+    near = grown(obj, r_out)  # an object as wide as the frame: a distance transform, not a dilation
+    ring = near & ~grown(obj, r_in) & person & ~arm
     if core.sum() < 50 or ring.sum() < 50:
         return add
     ys, xs = np.nonzero(near)

@@ -138,7 +138,7 @@ def grown(mask: np.ndarray, r: int) -> np.ndarray:
     digital ellipse up to ``LARGE_DISC``, the pixels within r of the mask beyond)."""
     import cv2
 
-    r = int(r)
+    mask, r = np.asarray(mask, bool), int(r)
     if r <= LARGE_DISC:
         return cv2.dilate(mask.astype(np.uint8), _ellipse(r)) > 0
     if not mask.any():
@@ -152,7 +152,7 @@ def shrunk(mask: np.ndarray, r: int) -> np.ndarray:
     it). The image's border does not count as outside."""
     import cv2
 
-    r = int(r)
+    mask, r = np.asarray(mask, bool), int(r)
     if r <= LARGE_DISC:
         return cv2.erode(mask.astype(np.uint8), _ellipse(r)) > 0
     if mask.all():
