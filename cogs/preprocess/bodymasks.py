@@ -57,7 +57,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from cogs.preprocess.segment import align_to_edges, grown, solidity
+from cogs.preprocess.segment import align_to_edges, disk, grown, solidity
 
 BINS = 16  # per channel, for the colour models
 MAX_FIT_ERROR = 0.1
@@ -151,10 +151,6 @@ def _posterior(img: np.ndarray, h_fg: np.ndarray, h_bg: np.ndarray) -> np.ndarra
     return (pf / (pf + pb))[(q[..., 0] * BINS + q[..., 1]) * BINS + q[..., 2]]
 
 
-def _disk(r: int) -> np.ndarray:
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-
-
 def _touching(cand: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """The connected pieces of ``cand`` [H, W] bool that touch ``mask`` (8-neighbours)."""
     n, lab = cv2.connectedComponents(cand.astype(np.uint8))
@@ -192,7 +188,7 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
     size = np.sqrt(area)
     r_in = max(2, round(0.15 * size))
     r_out = max(r_in + 3, round(MOTION_REACH * size))
-    core = cv2.erode(o8, _disk(2)) > 0
+    core = cv2.erode(o8, disk(2)) > 0
     near = grown(obj, r_out)  # an object as wide as the frame: a distance transform, not a dilation
     ring = near & ~grown(obj, r_in) & person & ~arm
     if core.sum() < 50 or ring.sum() < 50:
@@ -216,7 +212,7 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
         cand = np.zeros_like(obj)
         cand[ys[follows], xs[follows]] = True
         cand &= person & ~obj & ~arm
-    cand = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, _disk(1)) > 0
+    cand = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, disk(1)) > 0
     return _touching(cand, obj)
 
 
@@ -301,7 +297,7 @@ def _keep_area(person: np.ndarray, obj: np.ndarray, arm: np.ndarray, flow: np.nd
         return add
     if (cur & person[t]).sum() <= 0.5 * cur.sum() or (prev & person[t - 1]).sum() <= 0.5 * prev.sum():
         return add
-    ys, xs = np.nonzero(cv2.erode(cur.astype(np.uint8), _disk(2)))
+    ys, xs = np.nonzero(cv2.erode(cur.astype(np.uint8), disk(2)))
     if len(ys) < 50:
         return add
     xy = np.stack([xs, ys], 1).astype(np.float64)
@@ -326,7 +322,7 @@ def refine_frame(image: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
     # Fingers out of the object mask.
     hand = parts == 3
     if fingers and obj.any() and hand.any() and person.any():
-        region = cv2.dilate(hand.astype(np.uint8), _disk(max(2, round(0.008 * side)))) > 0
+        region = cv2.dilate(hand.astype(np.uint8), disk(max(2, round(0.008 * side)))) > 0
         sample_obj, sample_person = obj & ~region, person & ~obj & ~region
         if sample_obj.sum() >= 50 and sample_person.sum() >= 50:
             p_obj = _posterior(image, _hist(image, sample_obj), _hist(image, sample_person))
@@ -337,7 +333,7 @@ def refine_frame(image: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
     # The forearm into the person mask.
     arm = (parts >= 2) & ~person & ~obj
     if person_edges and arm.any() and person.any():
-        near = cv2.dilate((person | body).astype(np.uint8), _disk(max(3, round(0.025 * side)))) > 0
+        near = cv2.dilate((person | body).astype(np.uint8), disk(max(3, round(0.025 * side)))) > 0
         p_person = _posterior(image, _hist(image, person & ~obj), _hist(image, ~near & ~obj))
         add = _touching(arm & (p_person > PERSON_P), person)
         person = person | add
@@ -346,7 +342,7 @@ def refine_frame(image: np.ndarray, person: np.ndarray, obj: np.ndarray, parts: 
     # scene around the mask, not like the person inside the body.
     off = person & ~body & ~obj
     if person_edges and off.any() and (person & body).any():
-        ring = (cv2.dilate(person.astype(np.uint8), _disk(max(3, round(0.03 * side)))) > 0) & ~person & ~obj
+        ring = (cv2.dilate(person.astype(np.uint8), disk(max(3, round(0.03 * side)))) > 0) & ~person & ~obj
         if ring.sum() >= 50:
             p_person = _posterior(image, _hist(image, person & body & ~obj), _hist(image, ring))
             bleed = off & (p_person < BLEED_P)

@@ -122,12 +122,13 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 # exact disc at every size moved the bottle clip's track onto the floor, trusted, at 23-30;
 # from radius 100 on, variant 7 of the synthetic video lost 0.03 object IoU), so discs up to
 # 128 px, more than any object of the synthetic benchmark or the development clips but the
-# guitar and the backpack spans, stay as measured
-# (docs/experiments/2026-12-02-discs-the-size-of-a-guitar.md).
+# guitar and the backpack spans, stay as measured (the demo scene runs no preprocessing;
+# docs/experiments/2026-12-02-discs-the-size-of-a-guitar.md).
 LARGE_DISC = 128
 
 
-def _ellipse(r: int) -> np.ndarray:
+def disk(r: int) -> np.ndarray:
+    """OpenCV's digital ellipse of radius ``r``: a (2r + 1)-square uint8 structuring element."""
     import cv2
 
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
@@ -140,7 +141,7 @@ def grown(mask: np.ndarray, r: int) -> np.ndarray:
 
     mask, r = np.asarray(mask, bool), int(r)
     if r <= LARGE_DISC:
-        return cv2.dilate(mask.astype(np.uint8), _ellipse(r)) > 0
+        return cv2.dilate(mask.astype(np.uint8), disk(r)) > 0
     if not mask.any():
         return mask.copy()
     return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= r
@@ -154,7 +155,7 @@ def shrunk(mask: np.ndarray, r: int) -> np.ndarray:
 
     mask, r = np.asarray(mask, bool), int(r)
     if r <= LARGE_DISC:
-        return cv2.erode(mask.astype(np.uint8), _ellipse(r)) > 0
+        return cv2.erode(mask.astype(np.uint8), disk(r)) > 0
     if mask.all():
         return mask.copy()
     return cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) > r
