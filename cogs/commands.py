@@ -68,6 +68,7 @@ class Train:
         import yaml
 
         from cogs.config import load_config, to_dict
+        from cogs.data.outdir import claimed
         from cogs.data.scene import load_scene
         from cogs.train.trainer import Trainer
 
@@ -100,11 +101,12 @@ class Train:
                                 "--resume keeps it (drop --max-side)")
             max_side = recorded
         scene = load_scene(self.scene, ground_truth=False, max_side=max_side)
-        if not self.resume:
-            prepare_new_run(self.out, self.overwrite)
-        t0 = time.perf_counter()
-        summary = Trainer(scene, cfg, self.out, resume=self.resume, device=device, checkpoint=self.checkpoint,
-                          max_side=max_side).run()
+        with claimed(self.out):
+            if not self.resume:
+                prepare_new_run(self.out, self.overwrite)
+            t0 = time.perf_counter()
+            summary = Trainer(scene, cfg, self.out, resume=self.resume, device=device, checkpoint=self.checkpoint,
+                              max_side=max_side).run()
         log.info("trained in %.0f s (%s); Gaussians %s", time.perf_counter() - t0,
                  ", ".join(f"{k} {v:.0f}s" for k, v in summary["stage_seconds"].items()), summary["n_gaussians"])
         return 0
@@ -174,16 +176,22 @@ class Demo:
     """Where to train, evaluate and render: `cpu`, or `cuda` / `cuda:N`."""
 
     def run(self) -> int:
-        from cogs.data.synth.command import Synth, reusable_synthetic_scene
-        from cogs.data.validate import check_scene
-        from cogs.log import console
+        from cogs.data.outdir import claimed
 
-        times: dict[str, float] = {}
         t_all = time.perf_counter()
         # Every option is checked before any work; a scene the demo did not write is never replaced.
         if self.out.exists() and not self.out.is_dir():
             raise UserError(f"--out {self.out} is an existing file; --out names the demo's folder")
         _resolved_config(self.preset, self.set)
+        with claimed(self.out):  # a second demo in the same folder stops here
+            return self._run(t_all)
+
+    def _run(self, t_all: float) -> int:
+        from cogs.data.synth.command import Synth, reusable_synthetic_scene
+        from cogs.data.validate import check_scene
+        from cogs.log import console
+
+        times: dict[str, float] = {}
         scene_dir = self.out / "scene"
         synth = Synth(out=scene_dir, frames=self.frames, seed=self.seed, preview=True)
         reuse = reusable_synthetic_scene(scene_dir)

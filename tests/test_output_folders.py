@@ -153,6 +153,66 @@ def test_the_cli_exits_2_on_an_out_that_is_a_file(tmp_path, capsys):
     assert "--out" in err and "is an existing file" in err and "Traceback" not in err
 
 
+# -- one writer per folder ---------------------------------------------------------------------
+
+
+def hold(out: Path):
+    """Another process holding `out` the way a running cogs command does, until its stdin closes."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from pathlib import Path; from cogs.data.outdir import claimed\n"
+            "with claimed(Path(sys.argv[1])):\n    print('held', flush=True); sys.stdin.read()")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_preprocess_on_a_folder_being_written_stops_and_leaves_the_first_ones_work(clip, tmp_path):
+    from cogs.data.outdir import MARKER, claimed, lock_file
+
+    out = tmp_path / "scene"
+    work = tmp_path / "scene.partial"  # what the first run has made so far
+    (work / ".cache").mkdir(parents=True)
+    (work / MARKER).touch()
+    (work / ".cache" / "frames.json").write_text("{}")
+    other = hold(out)
+    before = tree_hash(tmp_path)
+    with pytest.raises(UserError) as e:
+        preprocess(clip, out)
+    assert str(e.value) == (f"--out {out} is being written by another cogs command (process {other.pid}); "
+                            "wait for it to finish or choose another --out")
+    assert tree_hash(tmp_path) == before
+    other.communicate("")  # the first run ends: its claim goes with it
+    assert not lock_file(out).exists()
+    with claimed(out):
+        with claimed(out):  # one process claims a folder once, however deep
+            assert lock_file(out).read_text() == str(__import__("os").getpid())
+    assert not lock_file(out).exists()
+
+
+@pytest.mark.parametrize("command", ["synth", "train"])
+def test_the_cli_stops_on_a_folder_another_command_writes_and_takes_it_once_that_one_is_killed(tmp_path, capsys, command):
+    import signal
+
+    scene = make_tiny_scene(tmp_path / "tiny")
+    out = tmp_path / "out"
+    args = {"synth": ["synth", "--out", str(out), "--frames", "2", "--width", "32", "--height", "24"],
+            "train": ["train", "--scene", str(scene), "--out", str(out), "--set", "schedule.I=1", "schedule.II=0", "schedule.III=0",
+                      "schedule.IV=0", "schedule.V=0", "schedule.VI=0"]}[command]
+    other = hold(out)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"is being written by another cogs command (process {other.pid})" in err and "Traceback" not in err
+    assert not out.exists()
+    other.send_signal(signal.SIGKILL)  # killed mid-write: the kernel releases the claim, the file stays
+    other.wait()
+    other.stdin.close()
+    other.stdout.close()
+    assert main(args) == 0
+    assert (out / ("scene.json" if command == "synth" else "train_summary.json")).exists()
+
+
 # -- synth and the demo's scene ------------------------------------------------------------------
 
 

@@ -5,7 +5,9 @@ scene) checks its `--out` before any work (`check_out_folder`), writes everythin
 temporary sibling folder, and puts that in place only once it is complete and accepted
 (`put_in_place`): an interrupted or failed run never leaves half a scene under the user's
 name, and a folder that is replaced (only with the user's say-so) is removed only after its
-replacement is in place.
+replacement is in place. While it works, the command holds `--out` (`claimed`): a second
+cogs command given the same folder stops at once instead of clearing the first one's
+temporary folder or checkpoints.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import os
 import shutil
 import uuid
 from contextlib import contextmanager
+from typing import Iterator
 from pathlib import Path
 
 from cogs.errors import UserError
@@ -145,19 +148,97 @@ def staged(out: Path, accept=None):
     `put_in_place`, whose result is in `.replaced` of the yielded path's holder). On any
     error the temporary folder is removed and `out` is untouched. The caller checks `out`
     first (`check_out_folder`)."""
-    tmp = new_staging(out.parent / f".{out.name}.cogs-tmp")
-    holder = _Staged(tmp)
-    try:
-        yield holder
-        if accept is not None:
-            accept(tmp)
-        holder.replaced = put_in_place(tmp, out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+    with claimed(out):
+        tmp = new_staging(out.parent / f".{out.name}.cogs-tmp")
+        holder = _Staged(tmp)
+        try:
+            yield holder
+            if accept is not None:
+                accept(tmp)
+            holder.replaced = put_in_place(tmp, out)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
 
 
 class _Staged:
     def __init__(self, path: Path):
         self.path = path
         self.replaced: str | None = None
+
+
+# -- one writer per folder ----------------------------------------------------------------
+
+LOCK_SUFFIX = ".cogs-lock"
+_held: dict[str, int] = {}  # lock file -> how many `claimed` blocks of this process hold it
+
+
+def lock_file(out: Path) -> Path:
+    """The file beside `out` whose lock says a cogs command is writing `out`."""
+    out = Path(os.path.abspath(out))
+    return out.parent / f".{out.name}{LOCK_SUFFIX}"
+
+
+@contextmanager
+def claimed(out: Path, option: str = "--out") -> Iterator[None]:
+    """Hold `out` for this process while the block writes it (its temporary sibling, its
+    checkpoints, its replacement). A second process claiming the same folder gets a
+    UserError at once naming the process that holds it: two runs on one `--out` would
+    otherwise clear each other's temporary folder and end in a traceback or a mixed result.
+
+    The claim is an advisory `flock` on `.<name>.cogs-lock` beside `out`, which the kernel
+    releases when the process ends however it ends (a file left by a killed run is simply
+    claimed again). Nested claims of one folder in one process are one claim. Where `flock`
+    does not exist (Windows) the block runs unclaimed."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield
+        return
+    path = lock_file(out)
+    key = str(path)
+    if key in _held:
+        _held[key] += 1
+        try:
+            yield
+        finally:
+            _held[key] -= 1
+        return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"{option} {out}: cannot create {path.parent} ({e.strerror})") from None
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise UserError(f"{option} {out}: cannot write beside it in {path.parent} ({e.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip()
+            os.close(fd)
+            who = f"process {holder}" if holder.isdigit() else "another process"
+            raise UserError(f"{option} {out} is being written by another cogs command ({who}); wait for it to finish "
+                            f"or choose another {option}") from None
+        # The holder before us may have removed the file between our open and our lock:
+        # then we hold a lock on a file nobody else will see; take the one at `path`.
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(path))
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, str(os.getpid()).encode(), 0)
+    _held[key] = 1
+    try:
+        yield
+    finally:
+        del _held[key]
+        try:
+            path.unlink()  # still holding the lock, so nobody else holds this file
+        except OSError:
+            pass
+        os.close(fd)

@@ -250,7 +250,13 @@ class _Runner:
         return f"nothing was written to {self.final}"
 
     def run(self) -> RunReport:
+        from cogs.data.outdir import claimed
+
         self.cfg.check_options()
+        with claimed(self.final):
+            return self._run_claimed()
+
+    def _run_claimed(self) -> RunReport:
         self._prepare_work()
         try:
             self._run()
