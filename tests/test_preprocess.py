@@ -427,6 +427,34 @@ def test_a_box_where_nothing_stands_out_is_tracked_as_its_ellipse_and_warned_abo
     assert "--object-box 0 10 20 30 40" in text and "frame 0" in text and "--sam2-checkpoint" in text
 
 
+def test_a_prompt_whose_mask_runs_along_its_box_is_warned_about_naming_the_side():
+    from cogs.preprocess.prompts import MAX_EDGE_RUN, edge_prompt_warning, edge_run, parse_prompts
+
+    images, gt, _ = _object_clip()
+    ys, xs = np.nonzero(gt[0])
+    prompt = parse_prompts((0, 10, 20, 30, 40), None, None)[0][0]
+    roomy = np.array([xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4], float)
+    side, share, _ = edge_run(O.grabcut_box(images[0], roomy)[0], roomy)
+    assert share < 0.1 and edge_prompt_warning(prompt, side, share, False) is None
+    cut = roomy.copy()
+    cut[2] = xs.mean() + 4  # through the disc: its mask runs along the box's right side
+    side, share, on_edge = edge_run(O.grabcut_box(images[0], cut)[0], cut)
+    assert side == "right" and share > MAX_EDGE_RUN and not on_edge
+    text = edge_prompt_warning(prompt, side, share, on_edge)
+    assert text.startswith(f"--object-box 0 10 20 30 40: the object's mask on frame 0 runs along {share:.0%} of the box's right side: "
+                           "the box cuts the object there")
+    assert "Draw the box a little larger than the object" in text and "--object-negative-box" in text
+    # The disc half out of the frame, the box on the frame's edge.
+    shifted = np.roll(images[0], images.shape[2] - int(xs.mean()), axis=1)
+    W = images.shape[2]
+    edge_box = np.array([W - (xs.max() - xs.min()) // 2 - 6, ys.min() - 3, W, ys.max() + 4], float)
+    side, share, on_edge = edge_run(O.grabcut_box(shifted, edge_box)[0], edge_box)
+    assert side == "right" and share > MAX_EDGE_RUN and on_edge
+    text = edge_prompt_warning(prompt, side, share, on_edge)
+    assert "of the box's right side, the frame's edge: the object leaves the frame there" in text
+    assert "Prompt a frame where the object is whole in view" in text
+
+
 def _kicked_ball_clip(T=10, H=160, W=160):
     """Grass, a leg (person) ending in a white shoe, and a white ball with dark spots that
     drops onto the shoe (frames 3-4) and flies back up; MediaPipe-like keypoints on the

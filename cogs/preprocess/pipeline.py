@@ -539,8 +539,9 @@ class _Runner:
             conf = masks.reshape(T, -1).any(1).astype(np.float64)
             update(T)
         else:
-            from cogs.preprocess.prompts import (box_mask, guessed_prompt_warning, lookalike_prompt_warning, lost_stretch_warning,
-                                                 person_lookalike_warning, small_prompt_warning, untrusted_stretches)
+            from cogs.preprocess.prompts import (box_mask, edge_prompt_warning, edge_run, guessed_prompt_warning,
+                                                 lookalike_prompt_warning, lost_stretch_warning, person_lookalike_warning,
+                                                 small_prompt_warning, untrusted_stretches)
 
             scaled = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.positives]
             scaled_neg = [(p.frame, O.scale_box(p.box, self.source_size, (W, H))) for p in self.negatives]
@@ -563,9 +564,10 @@ class _Runner:
                         prompts[k] &= ~negative[k]
                     if not prompts[k].any():
                         raise UserError(f"{p.option} {p.text}: GrabCut found no object in the box on frame {k}")
-                    small = small_prompt_warning(p, int(prompts[k].sum()), (W, H), cfg.max_side)
-                    if small:
-                        log.warning("%s", small)
+                    for text in (small_prompt_warning(p, int(prompts[k].sum()), (W, H), cfg.max_side),
+                                 None if guessed else edge_prompt_warning(p, *edge_run(prompts[k], box))):
+                        if text:
+                            log.warning("%s", text)
                 lookalike: dict[int, float] = {}
                 like_person: dict[int, float] = {}
                 still: dict[int, int] = {}
