@@ -213,6 +213,23 @@ def test_the_cli_stops_on_a_folder_another_command_writes_and_takes_it_once_that
     assert (out / ("scene.json" if command == "synth" else "train_summary.json")).exists()
 
 
+def test_export_and_render_stop_on_a_folder_another_command_writes(tmp_path, capsys):
+    scene = make_tiny_scene(tmp_path / "tiny")
+    run = tmp_path / "run"
+    assert main(["train", "--scene", str(scene), "--out", str(run), "--set", "schedule.I=1", "schedule.II=0",
+                 "schedule.III=0", "schedule.IV=0", "schedule.V=0", "schedule.VI=0"]) == 0
+    capsys.readouterr()
+    for args, out in ((["export", "--run", str(run)], tmp_path / "exp"), (["render", "--run", str(run)], tmp_path / "frames")):
+        other = hold(out)
+        try:
+            assert main([*args, "--out", str(out)]) == 2
+            err = capsys.readouterr().err
+            assert f"is being written by another cogs command (process {other.pid})" in err and "Traceback" not in err
+            assert not out.exists()
+        finally:
+            other.communicate("")
+
+
 # -- synth and the demo's scene ------------------------------------------------------------------
 
 

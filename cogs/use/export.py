@@ -54,6 +54,7 @@ class Export:
     """Write into a non-empty --out, replacing the files of an earlier export."""
 
     def run(self) -> int:
+        from cogs.data.outdir import claimed
         from cogs.model import Model
 
         if self.out.exists() and (not self.out.is_dir() or any(self.out.iterdir())) and not self.overwrite:
@@ -70,7 +71,8 @@ class Export:
         if not 0 <= self.frame < n:
             raise UserError(f"--frame {self.frame}: out of range, the run has frames 0..{n - 1}")
         fps = self.fps or run_fps(self.run_dir)
-        summary = export_bundle(model, self.out, self.frame, fps)
+        with claimed(self.out):  # a second export into the same --out stops at once
+            summary = export_bundle(model, self.out, self.frame, fps)
         log.info("exported %s: %s", self.out, ", ".join(summary["files"]))
         return 0
 

@@ -59,8 +59,11 @@ class Render(PlaybackOptions):
     """Replace an existing --out."""
 
     def run(self) -> int:
+        from cogs.data.outdir import claimed
+
         opts = self._check_options()
-        return render(self, **opts)
+        with claimed(self.out):  # a second render into the same --out stops at once
+            return render(self, **opts)
 
     def _check_options(self) -> dict:
         video = self.out.suffix.lower() == ".mp4"
