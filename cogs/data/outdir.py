@@ -17,8 +17,8 @@ import os
 import shutil
 import uuid
 from contextlib import contextmanager
-from typing import Iterator
 from pathlib import Path
+from typing import Iterator
 
 from cogs.errors import UserError
 

@@ -239,11 +239,11 @@ def guessed_prompt_warning(prompt: BoxPrompt) -> str:
 # The share of one side of an object prompt's box that its mask may run along before the user
 # is warned. GrabCut learns the background from outside the box: where the box cuts the object,
 # or lies on the frame's edge with scenery inside it, the mask runs along that side. 0.24 at
-# most on the development clips' prompts (the loading clip's second, whose top side follows the
-# TV box's lid) but the guitar's, whose box cuts the guitar's body on the left (0.51); 0.32 on
-# the synthetic video benchmark's 21 settings (variant 9: the box's straight side); 0.84 on an
-# unseen clip whose box reached the frame's right edge and whose mask took the bed there (a
-# black guitar on a black dress), 0 on another
+# most on the development clips' prompts (the loading clip's second) but the guitar's, whose box
+# cuts the guitar's body on the left (0.51); 0.32 at most on the synthetic video benchmark's 21
+# settings (variant 9, along the frame's edge); 0.84 on an unseen clip whose box reached the
+# frame's right edge and whose mask took the bed there (a black guitar on a black dress), 0 on
+# another
 # (docs/experiments/2026-12-02-a-lock-a-keep-away-and-prompts-that-run-along-their-box.md).
 MAX_EDGE_RUN = 0.4
 _SIDES = ("top", "bottom", "left", "right")
