@@ -104,20 +104,35 @@ def _commands() -> dict[str, type]:
     }
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a `kill`, a batch scheduler cancelling): raised in the main thread like
+    Ctrl-C's KeyboardInterrupt, so that the same cleanup runs (a preprocess keeps only its
+    cache, an output folder's claim and temporary folder go, a viewer closes)."""
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated()
+
+
 def main(argv: list[str] | None = None) -> int:
     from rich.markup import escape
 
     from cogs.log import console, setup_logging
 
     setup_logging()
-    if argv is None and hasattr(signal, "SIGPIPE"):
-        signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `cogs ... --help | head` ends quietly, as Unix tools do
+    if argv is None:  # the command line, not a caller's process
+        if hasattr(signal, "SIGPIPE"):
+            signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `cogs ... --help | head` ends quietly, as Unix tools do
+        signal.signal(signal.SIGTERM, _terminate)
     cmd = tyro.extras.subcommand_cli_from_dict(_commands(), args=argv, prog="cogs")
     try:
         code = cmd.run()
     except UserError as e:
         console.print(f"[red]error:[/red] {escape(str(e))}", highlight=False, soft_wrap=True)  # paths stay whole
         return 2
+    except Terminated:
+        console.print("[yellow]terminated[/yellow]")
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         console.print("[yellow]interrupted[/yellow]")
         return 130

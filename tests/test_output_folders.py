@@ -230,6 +230,30 @@ def test_export_and_render_stop_on_a_folder_another_command_writes(tmp_path, cap
             other.communicate("")
 
 
+def test_a_command_killed_with_sigterm_cleans_up_like_ctrl_c(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from cogs.data.outdir import lock_file
+
+    scene = make_tiny_scene(tmp_path / "tiny")
+    run = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "cogs.cli", "train", "--scene", str(scene), "--out", str(run), "--set",
+                             "schedule.I=1000000"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 300
+    while not (lock_file(run).exists() and (run / "config.yaml").exists()) and proc.poll() is None:
+        assert time.monotonic() < deadline, "training never started"
+        time.sleep(0.2)
+    assert proc.poll() is None, proc.communicate()[0]
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 128 + signal.SIGTERM, out
+    assert "terminated" in out and "Traceback" not in out
+    assert not lock_file(run).exists()  # the claim went with the cleanup, not only with the process
+
+
 # -- synth and the demo's scene ------------------------------------------------------------------
 
 
