@@ -230,6 +230,24 @@ def test_export_and_render_stop_on_a_folder_another_command_writes(tmp_path, cap
             other.communicate("")
 
 
+def test_a_folder_on_a_file_system_without_locks_is_written_unclaimed_with_a_warning(tmp_path, monkeypatch, caplog):
+    import errno
+    import fcntl
+    import logging
+
+    from cogs.data.outdir import claimed, lock_file
+
+    def no_locks(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    with caplog.at_level(logging.WARNING, logger="cogs"):
+        with claimed(tmp_path / "out"):
+            (tmp_path / "out").mkdir()
+    assert (tmp_path / "out").is_dir() and not lock_file(tmp_path / "out").exists()
+    assert any("cannot lock" in r.getMessage() and "No locks available" in r.getMessage() for r in caplog.records)
+
+
 def test_a_command_killed_with_sigterm_cleans_up_like_ctrl_c(tmp_path):
     import signal
     import subprocess

@@ -221,6 +221,13 @@ def claimed(out: Path, option: str = "--out") -> Iterator[None]:
             who = f"process {holder}" if holder.isdigit() else "another process"
             raise UserError(f"{option} {out} is being written by another cogs command ({who}); wait for it to finish "
                             f"or choose another {option}") from None
+        except OSError as e:  # a file system without locks (some network mounts): work unclaimed, as before
+            os.close(fd)
+            path.unlink(missing_ok=True)
+            log.warning("%s %s: cannot lock %s (%s); another cogs command on the same folder would not be stopped",
+                        option, out, path, e.strerror)
+            yield
+            return
         # The holder before us may have removed the file between our open and our lock:
         # then we hold a lock on a file nobody else will see; take the one at `path`.
         try:
