@@ -1,8 +1,10 @@
 """Folders a user has are never overwritten silently, and options are checked before any
-work: `cogs preprocess`, `cogs synth`, the demo's scene and `cogs render-init`."""
+work: `cogs preprocess`, `cogs synth`, the demo's scene and `cogs render-init`. One command
+writes a folder at a time, and a command stopped by Ctrl-C or SIGTERM cleans up."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -187,7 +189,7 @@ def test_a_second_preprocess_on_a_folder_being_written_stops_and_leaves_the_firs
     assert not lock_file(out).exists()
     with claimed(out):
         with claimed(out):  # one process claims a folder once, however deep
-            assert lock_file(out).read_text() == str(__import__("os").getpid())
+            assert lock_file(out).read_text() == str(os.getpid())
     assert not lock_file(out).exists()
 
 
