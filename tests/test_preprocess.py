@@ -455,6 +455,27 @@ def test_a_prompt_whose_mask_runs_along_its_box_is_warned_about_naming_the_side(
     assert "Prompt a frame where the object is whole in view" in text
 
 
+def test_a_body_laid_on_the_object_itself_is_warned_about_naming_the_frames_and_the_remedy():
+    from cogs.preprocess.persons import body_on_object, body_on_object_warning
+
+    T, H, W = 10, 120, 160
+    yy, xx = np.mgrid[:H, :W]
+    masks = np.stack([(xx - 80) ** 2 + (yy - 60) ** 2 < 30**2] * T)  # a round object in the middle
+    rng = np.random.default_rng(0)
+    beside = np.zeros((T, 33, 3))
+    beside[..., 0], beside[..., 1], beside[..., 2] = rng.uniform(120, 155, (T, 33)), rng.uniform(5, 115, (T, 33)), 0.9
+    beside[:, :8, :2] = [80, 60]  # the hands and wrists on the object, the rest off it: a person holding it
+    assert body_on_object(beside, masks) == ([], T) and body_on_object_warning(beside, masks) is None
+    on = beside.copy()
+    on[2:, :, 0], on[2:, :, 1] = rng.uniform(65, 95, (T - 2, 33)), rng.uniform(45, 75, (T - 2, 33))  # a doll
+    on[5, :, 2] = 0.1  # a frame without a body is not judged
+    frames, judged = body_on_object(on, masks)
+    assert frames == [2, 3, 4, 6, 7, 8, 9] and judged == T - 1
+    text = body_on_object_warning(on, masks)
+    assert text.startswith("the body MediaPipe found lies on the object in 7 of the 9 frames with both (frames 2, 3, 4, 6, 7, 8, 9)")
+    assert "--person-box FRAME X0 Y0 X1 Y1" in text
+
+
 def _kicked_ball_clip(T=10, H=160, W=160):
     """Grass, a leg (person) ending in a white shoe, and a white ball with dark spots that
     drops onto the shoe (frames 3-4) and flies back up; MediaPipe-like keypoints on the

@@ -351,6 +351,11 @@ class _Runner:
             if has_object:
                 ob, _ = self._step(ui, 3, "objects", ob_params, ["frames", "persons"], lambda lb: self._objects(lb, ui, images, pe))
                 obj_masks = ob["masks"].astype(bool)
+                from cogs.preprocess.persons import body_on_object_warning
+
+                text = body_on_object_warning(pe["kp2d"], obj_masks)
+                if text:
+                    log.warning("%s", text)
             else:
                 self.cache.keys["objects"] = "none"
                 ui.done(f"[3/{self.n_steps}] objects", "no object prompt: scene without object")
