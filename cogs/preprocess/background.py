@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cogs.preprocess.segment import grown
+from cogs.preprocess.segment import disk, grown
 
 
 def person_free(person_prob: np.ndarray, margin: int) -> np.ndarray:
@@ -28,8 +28,7 @@ def person_free(person_prob: np.ndarray, margin: int) -> np.ndarray:
     predicted at low resolution and misses limbs' edges)."""
     import cv2
 
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
-    return ~(cv2.dilate((person_prob > 64).astype(np.uint8), k) > 0)
+    return ~(cv2.dilate((person_prob > 64).astype(np.uint8), disk(margin)) > 0)
 
 
 def colour_residual(rgb: np.ndarray, ref: np.ndarray, tol: int) -> np.ndarray:

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from cogs.errors import UserError
+from cogs.preprocess.segment import disk
 
 log = logging.getLogger(__name__)
 
@@ -503,10 +504,7 @@ def choose_person(images: np.ndarray, near: tuple[int, np.ndarray] | None = None
 
 
 def _disc(radius: float) -> np.ndarray:
-    import cv2
-
-    k = 2 * int(round(radius)) + 1
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    return disk(int(round(radius)))
 
 
 class _OtherFaces:
@@ -988,7 +986,7 @@ def refine_mask_boundary(rgb: np.ndarray, prob: np.ndarray, threshold: float = 0
     y0, y1 = max(0, ys.min() - 2 * band), min(H, ys.max() + 2 * band + 1)
     x0, x1 = max(0, xs.min() - 2 * band), min(W, xs.max() + 2 * band + 1)
     m = mask[y0:y1, x0:x1].astype(np.uint8)
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band + 1, 2 * band + 1))
+    k = disk(band)
     inner = cv2.erode(m, k) > 0
     outer = cv2.dilate(m, k) > 0
     gc = np.full(m.shape, cv2.GC_BGD, np.uint8)

@@ -251,8 +251,7 @@ def align_to_edges(rgb: np.ndarray, mask: np.ndarray, radius: float | None = Non
     m = mask[y0:y1, x0:x1]
     aligned = guided_filter(rgb[y0:y1, x0:x1], m, r, eps) >= 0.5
     if keep_thin:
-        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        aligned |= m & ~(cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_OPEN, disc) > 0)
+        aligned |= m & ~(cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_OPEN, disk(r)) > 0)
     out = np.zeros_like(mask)
     out[y0:y1, x0:x1] = aligned
     return out

@@ -74,6 +74,7 @@ from cogs.preprocess.background import StaticScene, colour_residual, person_free
 from cogs.preprocess.segment import (
     ColourModel,
     convex_hull,
+    disk,
     fill_holes,
     grabcut_at,
     grabcut_at_hand,
@@ -555,7 +556,7 @@ def _filled_and_grown(polygon: np.ndarray, grow: float, shape: tuple[int, int]) 
     one = np.zeros(shape, np.uint8)
     cv2.fillConvexPoly(one, np.round(polygon).astype(np.int32).reshape(-1, 1, 2), 1)
     r = max(1, int(round(grow)))
-    return cv2.dilate(one, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    return cv2.dilate(one, disk(r)) > 0
 
 
 def holding_hand(kp2d: np.ndarray | None, t: int, mask: np.ndarray, share: float = 0.15) -> int | None:
@@ -634,7 +635,7 @@ def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float, convex: bo
 
     H, W = moving.shape
     r = max(1, int(0.05 * size))
-    opened = cv2.morphologyEx(moving.astype(np.uint8), cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
+    opened = cv2.morphologyEx(moving.astype(np.uint8), cv2.MORPH_OPEN, disk(r))
     n, comp, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
     if n <= 1:
         return np.zeros((H, W), bool)
@@ -1124,7 +1125,7 @@ class _Tracker:
             return seg
         c, s = mask_stats(fitted)
         r = max(1, int(round(FOOT_MARGIN * float(s.max()))))
-        near = cv2.dilate(fitted.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+        near = cv2.dilate(fitted.astype(np.uint8), disk(r)) > 0
         out = seg & ~(feet & ~near)
         return fill_holes(largest_component_near(out, tuple(c))) if out.any() else out
 
