@@ -1,7 +1,7 @@
 """Accuracy of `cogs preprocess` against the synthetic scene's ground truth.
 
     python benchmarks/preprocess_accuracy.py [--frames 40] [--width 640] [--height 480]
-        [--seed 0] [--variant 0] [--scene DIR] [--work DIR] [--focal-prior]
+        [--seed 0] [--variant 0] [--scene DIR] [--work DIR] [--focal-prior] [--track-side 0]
 
 ``--seed`` changes only the synthetic scene's noisy pipeline-like inputs, which the
 command does not read (the rendered frames are the same); ``--variant`` renders another
@@ -111,6 +111,7 @@ def main(argv=None) -> int:
     ap.add_argument("--work", type=Path, default=None, help="working folder (default: a temporary one)")
     ap.add_argument("--focal-prior", action="store_true", help="use the 1.2 x longer-side focal prior, not the true focal")
     ap.add_argument("--body-iterations", type=int, default=300)
+    ap.add_argument("--track-side", type=int, default=0, help="cogs preprocess --track-side (0: track at the frames' size)")
     args = ap.parse_args(argv)
 
     from cogs.body import load_body_model
@@ -164,7 +165,7 @@ def main(argv=None) -> int:
     out = work / "preprocessed"
     cfg = Preprocess(
         input=video, out=out, max_side=max(W, H), object_box=box, object_box_frame=box_frame or 0,
-        focal_px=None if args.focal_prior else float(K_gt[0, 0]), body_iterations=args.body_iterations,
+        focal_px=None if args.focal_prior else float(K_gt[0, 0]), body_iterations=args.body_iterations, track_side=args.track_side,
         progress=False, overwrite=True,  # the benchmark's own output: a rerun with --work reuses its cached steps
     )
     t1 = time.perf_counter()
@@ -250,7 +251,7 @@ def main(argv=None) -> int:
 
     res = {
         "benchmark": "preprocess_accuracy",
-        "frames": T, "width": W, "height": H,
+        "frames": T, "width": W, "height": H, "track_side": args.track_side,
         "variant": int((gt_scene.source.get("config") or {}).get("variant", 0)) if args.scene else args.variant,
         "focal": "prior 1.2 x longer side" if args.focal_prior else "true focal given",
         "video": {"codec": "libx264", "crf": 10, "encoder_threads": 1, "mbtree": False},

@@ -123,6 +123,7 @@ def test_a_users_folder_where_the_work_folder_goes_is_refused_and_kept(clip, tmp
     ("--focal-factor", dict(focal_factor=-1.2)),
     ("--focal-px", dict(focal_px=0.0)),
     ("--person-threshold", dict(person_threshold=1.5)),
+    ("--track-side", dict(track_side=32)),
     ("--object-box", dict(object_box=(50.0, 50.0, 10.0, 10.0))),
     ("--object-box-frame", dict(object_box=(0.0, 0.0, 10.0, 10.0), object_box_frame=-1)),
     ("--object-box", dict(object_box=((1.0, 5.0, 5.0, 20.0, 20.0), (1.0, 6.0, 6.0, 30.0, 30.0)))),

@@ -254,6 +254,29 @@ def test_object_masks_follow_a_moving_object_from_one_box():
     assert (conf > 0).all()
 
 
+def test_frames_larger_than_the_track_side_are_tracked_shrunk_and_their_masks_come_back_at_full_size():
+    import cv2
+
+    small, gt_small, person_small = _object_clip()
+    T, h, w, _ = small.shape
+    images = np.stack([cv2.resize(f, (2 * w, 2 * h), interpolation=cv2.INTER_LINEAR) for f in small])
+    gt = np.stack([cv2.resize(m.astype(np.uint8), (2 * w, 2 * h), interpolation=cv2.INTER_NEAREST) > 0 for m in gt_small])
+    probs = np.stack([cv2.resize(m.astype(np.uint8) * 255, (2 * w, 2 * h), interpolation=cv2.INTER_NEAREST) for m in person_small])
+    k = 3
+    ys, xs = np.nonzero(gt[k])
+    prompt, _ = O.grabcut_box(images[k], np.array([xs.min() - 6, ys.min() - 6, xs.max() + 8, ys.max() + 8], float))
+    still: dict = {}
+    masks, conf = O.track(images, {k: prompt}, side=w, human_probs=probs, still=still)
+    assert masks.shape == gt.shape and (conf > 0).all()
+    ious = [_iou(masks[t], gt[t]) for t in range(T)]
+    assert min(ious) > 0.8, ious
+    assert set(still) == {k}
+    # Frames no larger than the side are tracked as they are.
+    same, same_conf = O.track(images, {k: prompt}, side=2 * w, human_probs=probs)
+    ref, ref_conf = O.propagate_masks(images, prompt, k, human_probs=probs)
+    assert (same == ref).all() and np.array_equal(same_conf, ref_conf)
+
+
 def test_a_doubtful_run_is_tracked_again_from_the_clear_view_after_it():
     # A forward track left the disc for a look-alike patch of background on frames 5-6
     # (found with little confidence) and found the disc again, clearly, on frame 7. The

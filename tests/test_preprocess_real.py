@@ -118,3 +118,26 @@ def test_a_second_run_resumes_from_the_cache(real_scene):
     assert set(report.cached) == set(STEPS) - {"scene"}
     computed = sum(v for k, v in report.seconds.items() if k != "scene")
     assert computed == 0.0
+
+
+@pytest.mark.slow
+def test_track_side_tracks_the_ball_on_shrunk_frames_and_keeps_the_masks_at_full_size(real_scene, tmp_path):
+    import shutil
+
+    from cogs.data.scene import load_scene
+    from cogs.preprocess.pipeline import run_preprocess
+
+    cfg, _, _ = real_scene
+    out = tmp_path / "scene"
+    shutil.copytree(cfg.out, out)  # a copy of the full-size scene, replaced reusing its cache
+    report = run_preprocess(dataclasses.replace(cfg, out=out, track_side=240, overwrite=True))
+    assert {"frames", "persons"} <= set(report.cached) and "objects" not in report.cached
+    s = load_scene(out)
+    assert s.object_masks.shape == (12, 480, 270)
+    assert s.object_masks[3:8].reshape(5, -1).any(1).all()
+    # The same ball as at full size: the masks overlap where both found it.
+    full = load_scene(cfg.out).object_masks
+    both = [t for t in range(12) if full[t].any() and s.object_masks[t].any()]
+    ious = [(full[t] & s.object_masks[t]).sum() / (full[t] | s.object_masks[t]).sum() for t in both]
+    assert len(both) >= 5 and np.median(ious) > 0.6, ious
+    assert not np.array_equal(full, s.object_masks)  # tracked on other pixels

@@ -347,7 +347,8 @@ class _Runner:
 
             has_object = bool(self.positives) or cfg.object_masks is not None
             ob_params = {**self._prompt_params(), "masks": str(cfg.object_masks), "sam2": str(cfg.sam2_checkpoint),
-                         "tracker": TRACKER_VERSION}
+                         "tracker": TRACKER_VERSION,
+                         **({"track_side": cfg.track_side} if cfg.track_side else {})}
             if has_object:
                 ob, _ = self._step(ui, 3, "objects", ob_params, ["frames", "persons"], lambda lb: self._objects(lb, ui, images, pe))
                 obj_masks = ob["masks"].astype(bool)
@@ -576,9 +577,9 @@ class _Runner:
                 lookalike: dict[int, float] = {}
                 like_person: dict[int, float] = {}
                 still: dict[int, int] = {}
-                masks, conf = O.propagate_masks(images, list(prompts.values()), list(prompts), human_probs=pe["probs"], kp2d=pe["kp2d"],
-                                                negatives=negative, cues=cues, sources=sources, lookalike=lookalike, still=still,
-                                                like_person=like_person, on_frame=lambda n: update(n))
+                masks, conf = O.track(images, prompts, cfg.track_side, human_probs=pe["probs"], kp2d=pe["kp2d"],
+                                      negatives=negative, cues=cues, sources=sources, lookalike=lookalike, still=still,
+                                      like_person=like_person, on_frame=lambda n: update(n))
                 for p in self.positives:
                     for text in (lookalike_prompt_warning(p, lookalike[p.frame]), person_lookalike_warning(p, like_person[p.frame])):
                         if text:
