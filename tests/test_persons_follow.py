@@ -381,3 +381,32 @@ def test_bodies_on_hands_are_dropped_and_a_track_mostly_on_hands_is_dropped_whol
     half[:3] = True  # half the finds are hands: the rest are the same hand, missed by Hands
     assert not drop_bodies_on_hands(track(), half).detected.any()
     assert drop_bodies_on_hands(track(), np.zeros(6, bool)).detected.all()
+
+
+def test_frames_the_detector_missed_are_filled_from_the_frames_next_to_them(default_scene_dir):
+    """MediaPipe's detector can miss a person it finds a few frames later (the backpack clip at
+    480 pixels: the first 29 frames). Those frames are followed into by the landmark model
+    from the frame next to them; a frame with nobody in it stays missing."""
+    pytest.importorskip("mediapipe", reason="mediapipe is in the optional `preprocess` extra")
+    from PIL import Image
+
+    from cogs.preprocess.persons import PersonTrack, detect_persons, fill_missing
+
+    frames = range(0, 40, 4)
+    images = np.stack([np.asarray(Image.open(default_scene_dir / "images" / f"{t:06d}.png").convert("RGB")) for t in frames])
+    human = np.stack([np.asarray(Image.open(default_scene_dir / "masks" / "human" / f"{t:06d}.png")) > 127 for t in frames])
+    images[9] = 127  # nobody on the last frame
+    track = detect_persons(images)
+    assert track.detected[:9].all() and not track.detected[9]
+    missed = PersonTrack.from_arrays({k: v.copy() for k, v in track.arrays().items()})
+    for t in (0, 1, 2, 5):  # what the detector did not find on these frames
+        missed.masks[t], missed.probs[t], missed.detected[t] = False, 0, False
+        missed.kp2d[t], missed.kp3d[t] = np.nan, np.nan
+    filled_track, filled = fill_missing(images, missed)
+    assert filled == [0, 1, 2, 5]  # frame 9 has nobody to follow
+    for t in filled:
+        iou = (filled_track.masks[t] & human[t]).sum() / (filled_track.masks[t] | human[t]).sum()
+        assert iou > 0.6, f"frame {t}: IoU {iou:.2f} with the true person"
+        hips = filled_track.kp2d[t, [23, 24], :2].mean(0)
+        assert human[t][int(hips[1]), int(hips[0])], f"frame {t}: the hips are off the body"
+    assert not filled_track.detected[9] and np.isnan(filled_track.kp2d[9]).all()

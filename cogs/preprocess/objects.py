@@ -11,6 +11,7 @@ Two engines:
   to a local colour model), a whole-frame colour search, and a search next to the hand
   that carried the object when it is lost, all told by a model of the static scene what
   cannot be the object and what moved. See ``tracking.py`` and ``background.py``.
+  ``track`` runs it, on frames shrunk to ``--track-side`` when that is set.
 
 The person's mask is a soft prior here, not a hard exclusion: MediaPipe's person mask often
 swallows a held object. The returned object masks and the person masks are made disjoint

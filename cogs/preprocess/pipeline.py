@@ -35,7 +35,7 @@ from cogs.errors import UserError
 log = logging.getLogger(__name__)
 
 CACHE_VERSION = 1
-PERSONS_VERSION = 6  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body; 5: bodies laid on a hand dropped; 6: a followed person never takes somebody else's face)
+PERSONS_VERSION = 7  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body; 5: bodies laid on a hand dropped; 6: a followed person never takes somebody else's face; 7: frames the detector missed between or beside frames it found the person in are followed into by the landmark model)
 TRACKER_VERSION = 20  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into; 9: the static scene judged after a long loss too; 10: an object lost while carried searched for where a hand has been; 11: GrabCut's spread onto a foot dropped; 12: doubtful runs tracked again from their other side; 13: a foot seen end-on sized from its shin; 14: a mask's parts that hold still with the room while the rest moves left out; 15: a clear view next to a hand does not end a carry; 16: nor does the other hand taking it over; 17: an object coloured like the person is looked for off the person, near the hands; 18: a prompt a pass sees carried starts carried in the pass the other way, and a motion fit in other colours is kept last where it moves; 19: the frames it was lost in judge the static scene too where the warp from those that found it fails; 20: discs over 128 px grown by a distance transform, where a dilation by OpenCV's digital ellipse took seconds): bumping it redoes the object masks (and what reads them)
 SFM_VERSION = 4  # of the cameras step (2: COLMAP's two-view RANSAC seeded, its features extracted and bundles adjusted on one thread; 3: without parallax, COLMAP's rotations or the homography chain, whichever explains the background better; 4: features matched exactly by us, so the same frames give the same cameras): bumping it redoes the cameras
 MASKS_VERSION = 9  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly; 7: a mask's specks left out of its solidity; 8: the person's and the object's outlines moved onto the frame's edges; 9: the ring round a held object over 128 px grown by a distance transform): bumping it redoes the masks step
@@ -482,6 +482,15 @@ class _Runner:
         track = off_hands(track, "MediaPipe Pose")
         if not track.detected.any():
             track = off_hands(self._body_without_face(images, size, update), "MediaPipe's landmark model")
+        elif not track.detected.all():
+            from cogs.preprocess.persons import fill_missing
+
+            update_f = ui.task(f"{label} (missed frames)", int((~track.detected).sum()))
+            track, filled = fill_missing(images, track, on_frame=lambda k: update_f(k), mask_threshold=self.cfg.person_threshold)
+            if filled:
+                log.warning("MediaPipe's person detector missed the person in %d frame(s) it found them around: %s%s; "
+                            "the landmark model followed the body into them from the frames next to them, without the "
+                            "face's keypoints", len(filled), filled[:10], "..." if len(filled) > 10 else "")
         if self.cfg.refine_person_masks and self.cfg.sam2_checkpoint is None:
             import cv2
 
