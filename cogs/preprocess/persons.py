@@ -808,31 +808,24 @@ def fill_missing(images: np.ndarray, track: PersonTrack, on_frame=None, mask_thr
     development clip at its full 480 pixels it missed the person, framed from the shoulders
     down, in the first 29 frames while the body was in view (at 384 it found nobody at all,
     and the whole clip was followed this way)."""
-    T = len(images)
-    det = track.detected.copy()
+    from cogs.preprocess.prompts import runs_of
+
     filled: list[int] = []
-    if det.all() or not det.any():
+    if track.detected.all() or not track.detected.any():
         return track, filled
+    dst = track.arrays()  # the track's own arrays, written in place
     done = 0
-    t = 0
-    while t < T:
-        if det[t]:
-            t += 1
-            continue
-        a = t
-        while t < T and not det[t]:
-            t += 1
-        b = t - 1  # frames a..b missed
+    for a, b in runs_of(~track.detected):  # frames a..b missed
         k = a - 1 if a > 0 else b + 1
         lo, hi = min(a, k), max(b, k) + 1
         ys, xs = np.nonzero(track.masks[k])
         if len(ys):
             box = np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], np.float64)
-            sub = follow_body(images[lo:hi], k - lo, box, mask_threshold=mask_threshold)
+            src = follow_body(images[lo:hi], k - lo, box, mask_threshold=mask_threshold).arrays()
             for u in range(a, b + 1):
-                if sub.detected[u - lo]:
-                    for name in ("masks", "probs", "kp2d", "kp3d", "detected"):
-                        getattr(track, name)[u] = getattr(sub, name)[u - lo]
+                if src["detected"][u - lo]:
+                    for name in dst:
+                        dst[name][u] = src[name][u - lo]
                     filled.append(u)
         done += b - a + 1
         if on_frame:

@@ -294,15 +294,19 @@ def untrusted_stretches(confidence: np.ndarray, min_confidence: float) -> list[t
     ``LOST_STRETCH_SHARE``), longest first."""
     low = np.asarray(confidence) < min_confidence
     least = max(LOST_STRETCH_FRAMES, int(math.ceil(LOST_STRETCH_SHARE * len(low))))
+    return sorted((r for r in runs_of(low) if r[1] - r[0] + 1 >= least), key=lambda r: (r[0] - r[1], r[0]))
+
+
+def runs_of(flags: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) index of each run of True in ``flags`` [T] bool, in order."""
     runs, start = [], None
-    for t, v in enumerate([*low, False]):
+    for t, v in enumerate([*np.asarray(flags, bool), False]):
         if v and start is None:
             start = t
         elif not v and start is not None:
-            if t - start >= least:
-                runs.append((start, t - 1))
+            runs.append((start, t - 1))
             start = None
-    return sorted(runs, key=lambda r: (r[0] - r[1], r[0]))
+    return runs
 
 
 def lost_stretch_warning(stretches: list[tuple[int, int]], n_frames: int) -> str | None:
