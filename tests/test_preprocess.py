@@ -957,6 +957,27 @@ def test_a_track_along_the_arm_does_not_supervise_the_object():
     assert not on_forearm(masks, kp)[-1] and (conf[1:] <= UNCLEAR_CONFIDENCE).all(), conf
 
 
+def test_a_mask_over_three_times_its_prompts_area_is_a_track_that_spread():
+    # Two prompts of different sizes: each frame is judged against the prompt its mask was
+    # tracked from, and a prompt itself never is.
+    from cogs.preprocess.tracking import MAX_AREA_GROWTH, too_large
+
+    H, W = 60, 80
+    yy, xx = np.mgrid[:H, :W]
+
+    def square(side):
+        return (xx < side) & (yy < side)
+
+    masks = np.stack([square(10), square(17), square(18), square(30), square(30), square(52)])
+    found = ["prompt", "flow", "stay", "prompt", "colour", "features"]
+    origin = [0, 0, 0, 3, 3, 3]
+    # 289 and 324 px against a 100 px prompt; 900 and 2704 against 900.
+    assert too_large(masks, found, origin, {0: 100, 3: 900}, growth=3.0).tolist() == [2, 5]
+    assert too_large(masks, found, origin, {0: 100, 3: 900}, growth=2.5).tolist() == [1, 2, 5]
+    assert too_large(masks, found, origin, {0: 100, 3: 900}).tolist() == too_large(masks, found, origin, {0: 100, 3: 900}, MAX_AREA_GROWTH).tolist()
+    assert too_large(masks, found, [0] * 6, {0: 100}, growth=3.0).tolist() == [2, 4, 5]
+
+
 def _disc_past_a_person(shirt):
     """_object_clip's disc passing the person, the person's mask taking the disc in where it
     is in front (as MediaPipe's takes a held racket in), the upper body in ``shirt``."""
