@@ -1976,6 +1976,30 @@ def test_a_whole_ball_in_front_of_a_moving_leg_does_not_take_the_leg_in():
         assert (grown[t] & missed).sum() >= 0.6 * missed.sum()
 
 
+def test_the_motions_that_tell_a_held_object_from_the_shirt_must_differ_more_on_larger_frames():
+    # A box held in front of the body, a face of it turning into view beside it and moving
+    # with it by 3 px, the shirt still. At 384 px (where the 2 px bound was chosen) the face
+    # joins the box; on a 960 px frame 3 px is what 1.2 px is at 384, under the bound, and
+    # nothing grows; 7.5 px there (3 px at 384) grows it again.
+    from cogs.preprocess.bodymasks import motion_grow_frame
+
+    def held_box(side, shift):
+        yy, xx = np.mgrid[:side, :side]
+        box = (np.abs(xx - 150) <= 20) & (np.abs(yy - 150) <= 20)
+        face = (xx > 170) & (xx <= 180) & (np.abs(yy - 150) <= 20)
+        person = (np.abs(xx - 150) <= 90) & (np.abs(yy - 150) <= 90)
+        flow = np.zeros((side, side, 2), np.float32)
+        flow[box | face] = (shift, 0.0)
+        return motion_grow_frame(box, person, np.zeros_like(box), flow), face
+
+    add, face = held_box(384, 3.0)
+    assert (add & face).sum() >= 0.9 * face.sum() and not (add & ~face).any()
+    add, face = held_box(960, 3.0)
+    assert not add.any()
+    add, face = held_box(960, 7.5)
+    assert (add & face).sum() >= 0.9 * face.sum() and not (add & ~face).any()
+
+
 def test_a_held_object_that_suddenly_shrinks_is_filled_back_in_from_the_previous_frame():
     import cv2
 

@@ -29,7 +29,8 @@ follow the object's motion at least twice as closely as the shirt's, and within 
 two motions' separation, join the object when they touch it (a face turning into view
 moves with the box, the shirt with the body). Repeated up to three times, since each
 round refits the object's motion on the grown mask. Where the two motions differ by less
-than 2 px (the box held still against the body) the flow cannot tell them apart; there,
+than 2 px at 384 px and proportionally more on larger frames (5 px at 960; the box held still
+against the body) the flow cannot tell them apart; there,
 what this test added in the previous frame is carried along the flow and kept where its
 colour is unchanged (within 12 grey levels) and it touches the object. Last, a held object
 does not shrink suddenly: where the mask, held in front of the body in this frame and the
@@ -74,7 +75,17 @@ MAX_TRIMMED = 0.25  # of a frame's person mask, at most
 HELD_RING = 0.5  # share of the object's outline inside the person mask for the motion test to apply
 MOTION_RATIO = 0.5  # a pixel's flow residual to the object's motion, at most this times its residual to the person's
 MOTION_REACH = 0.75  # of the object's size (square root of its area): how far from it pixels are tested and the person sampled
-MIN_SEPARATION = 2.0  # px: the object's and the person's motions must differ by at least this much
+# The object's and the person's motions must differ by at least MIN_SEPARATION px at a frame
+# whose longer side is SEPARATION_SIDE px, and by that much more on larger frames (never less
+# than MIN_SEPARATION): the same motion covers 2.5x the pixels at 960 as at 384. At a fixed
+# 2 px the bottle's and the guitar's development clips at the default 960 px grew the shirt,
+# torso and legs into the object (the guitar's frame 10: 26,606 -> 51,174 px); at 5 px
+# (2 px scaled from 384) neither does, while 3 and 4 px still let it in. Measured on those
+# clips at 960, the seven development clips at 384 (unchanged: the factor is 1 there) and
+# the synthetic video at eight settings at 640 (3.3 px: object mask IoU within +-0.006 of 2 px's,
+# human within 0.002; docs/experiments/2026-12-02-c-masks-larger-than-their-prompt.md).
+MIN_SEPARATION = 2.0
+SEPARATION_SIDE = 384
 MOTION_ROUNDS = 3
 KEEP_AREA = 0.85  # a held object's mask below this share of the previous frame's is filled back in from it
 # A tracked mask at least this convex and at least this share of the tracker's median
@@ -201,7 +212,7 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
     m_obj = _fit_affine(xy[in_core], target[in_core])
     m_person = _fit_affine(xy[in_ring], target[in_ring])
     sep = float(np.median(np.linalg.norm((A[in_core] @ m_obj) - (A[in_core] @ m_person), axis=1)))
-    if sep < MIN_SEPARATION:
+    if sep < MIN_SEPARATION * max(1.0, max(obj.shape) / SEPARATION_SIDE):
         if carried is None:
             return add  # the object moves with the person: the flow cannot tell them apart
         cand = carried & person & ~obj & ~arm & near
