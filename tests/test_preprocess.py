@@ -2000,6 +2000,31 @@ def test_the_motions_that_tell_a_held_object_from_the_shirt_must_differ_more_on_
     assert (add & face).sum() >= 0.9 * face.sum() and not (add & ~face).any()
 
 
+def test_a_ball_beside_the_body_is_not_taken_for_one_held_in_front_of_it_on_a_larger_frame():
+    # A ball beside the body, MediaPipe's person mask spreading a pixel of a 384 px frame
+    # past it, and the flow's halo: two such pixels round the ball moving with it. Growth
+    # runs only for an object whose outline lies mostly inside the person mask; that outline
+    # is a ring of 3 px at 384, which reaches past the spread: nothing grows. At 960 px the
+    # spread is 3 px and the halo 4: a ring of 3 px lay inside the spread, the ball counted as
+    # held in front of the body, and the halo grew into it. As much of the frame, it does not.
+    from cogs.preprocess.bodymasks import motion_grow_frame
+    from cogs.preprocess.segment import grown
+
+    def beside_the_body(side):
+        k = side / 384
+        yy, xx = np.mgrid[:side, :side]
+        c, r = 200 * k, 30 * k
+        ball = (xx - c) ** 2 + (yy - c) ** 2 <= r**2
+        torso = (xx < c - r) & (xx > c - 160 * k) & (np.abs(yy - c) <= 120 * k)
+        person = torso | grown(ball, round(1.2 * k))
+        flow = np.zeros((side, side, 2), np.float32)
+        flow[grown(ball, round(1.6 * k))] = (4.0 * k, 0.0)
+        return motion_grow_frame(ball, person, np.zeros_like(ball), flow)
+
+    assert not beside_the_body(384).any()
+    assert not beside_the_body(960).any()
+
+
 def test_a_held_object_that_suddenly_shrinks_is_filled_back_in_from_the_previous_frame():
     import cv2
 

@@ -58,7 +58,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from cogs.preprocess.segment import align_to_edges, disk, grown, solidity
+from cogs.preprocess.segment import align_to_edges, at_size, disk, grown, solidity
 
 BINS = 16  # per channel, for the colour models
 MAX_FIT_ERROR = 0.1
@@ -76,8 +76,8 @@ HELD_RING = 0.5  # share of the object's outline inside the person mask for the 
 MOTION_RATIO = 0.5  # a pixel's flow residual to the object's motion, at most this times its residual to the person's
 MOTION_REACH = 0.75  # of the object's size (square root of its area): how far from it pixels are tested and the person sampled
 # The object's and the person's motions must differ by at least MIN_SEPARATION px at a frame
-# whose longer side is SEPARATION_SIDE px, and by that much more on larger frames (never less
-# than MIN_SEPARATION): the same motion covers 2.5x the pixels at 960 as at 384. At a fixed
+# whose longer side is 384 px, and by that much more on larger frames (never less than
+# MIN_SEPARATION; ``segment.at_size``): the same motion covers 2.5x the pixels at 960 as at 384. At a fixed
 # 2 px the bottle's and the guitar's development clips at the default 960 px grew the shirt,
 # torso and legs into the object (the guitar's frame 10: 26,606 -> 51,174 px); at 5 px
 # (2 px scaled from 384) neither does, while 3 and 4 px still let it in. Measured on those
@@ -85,7 +85,6 @@ MOTION_REACH = 0.75  # of the object's size (square root of its area): how far f
 # the synthetic video at eight settings at 640 (3.3 px: object mask IoU within +-0.006 of 2 px's,
 # human within 0.002; docs/experiments/2026-12-02-c-masks-larger-than-their-prompt.md).
 MIN_SEPARATION = 2.0
-SEPARATION_SIDE = 384
 MOTION_ROUNDS = 3
 KEEP_AREA = 0.85  # a held object's mask below this share of the previous frame's is filled back in from it
 # A tracked mask at least this convex and at least this share of the tracker's median
@@ -187,19 +186,35 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
     """The pixels to add to one frame's object mask because they move with it, not with the person.
 
     `flow` [H, W, 2] is the flow from this frame back to the previous one, `arm` the fitted
-    forearm and hand (neither a sample of the person's motion nor a candidate)."""
+    forearm and hand (neither a sample of the person's motion nor a candidate).
+
+    Its lengths are pixels of a 384 px frame, scaled to this frame (``segment.at_size``; masks
+    11): the ring that tells whether the object is held in front of the body (3 px), the core
+    its motion is sampled on (2 px in from its outline) and the inner edge of the ring the
+    person's motion is sampled on (2 and 3 px). At 960 a ring of a fixed 3 px lay inside
+    MediaPipe's mask spreading past an object beside the body, and the flow's halo round it
+    grew in. On the synthetic video object IoU at 960 px 0.866 -> 0.875 (variant 3), 0.838 ->
+    0.839 (reference), 0.794 -> 0.793 (seed 7, 960x720); at 640 px 0.833 -> 0.834
+    (reference), 0.741 -> 0.741 (variant 4). Its counts stay (the smallest object grown,
+    100 px; the fewest samples, 50), and so does ``_keep_area``'s 2 px core: scaled, they left
+    a bottle 25 px wide at 960 too few samples to be filled back in (the bottle clip's 38-41).
+    So does the opening that drops the candidates' specks: scaled, it also dropped the thin
+    faces of a box turning into view (variant 4 at 640: 0.741 -> 0.739)
+    (docs/experiments/2026-12-02-d-pixel-lengths-on-larger-frames.md)."""
     add = np.zeros_like(obj)
     area = int(obj.sum())
+    unit = at_size(1.0, obj.shape)  # a pixel of a 384 px frame, in this frame's pixels
     if area < 100:
         return add
     o8 = obj.astype(np.uint8)
-    edge = (cv2.dilate(o8, np.ones((7, 7), np.uint8)) > 0) & ~obj
+    r = round(3 * unit)
+    edge = (cv2.dilate(o8, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0) & ~obj
     if (edge & person).sum() < HELD_RING * edge.sum():
         return add  # not held in front of the body: colour and the scene's model do better there
     size = np.sqrt(area)
-    r_in = max(2, round(0.15 * size))
-    r_out = max(r_in + 3, round(MOTION_REACH * size))
-    core = cv2.erode(o8, disk(2)) > 0
+    r_in = max(round(2 * unit), round(0.15 * size))
+    r_out = max(r_in + round(3 * unit), round(MOTION_REACH * size))
+    core = cv2.erode(o8, disk(round(2 * unit))) > 0
     near = grown(obj, r_out)  # an object as wide as the frame: a distance transform, not a dilation
     ring = near & ~grown(obj, r_in) & person & ~arm
     if core.sum() < 50 or ring.sum() < 50:
@@ -212,7 +227,7 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
     m_obj = _fit_affine(xy[in_core], target[in_core])
     m_person = _fit_affine(xy[in_ring], target[in_ring])
     sep = float(np.median(np.linalg.norm((A[in_core] @ m_obj) - (A[in_core] @ m_person), axis=1)))
-    if sep < MIN_SEPARATION * max(1.0, max(obj.shape) / SEPARATION_SIDE):
+    if sep < MIN_SEPARATION * unit:
         if carried is None:
             return add  # the object moves with the person: the flow cannot tell them apart
         cand = carried & person & ~obj & ~arm & near

@@ -125,6 +125,21 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 # guitar and the backpack spans, stay as measured (the demo scene runs no preprocessing;
 # docs/experiments/2026-12-02-discs-the-size-of-a-guitar.md).
 LARGE_DISC = 128
+# The frame size the masks step's pixel lengths were chosen at (the development clips at
+# --max-side 384): a length there covers SCALE_SIDE / side as much of a larger frame, so it
+# is scaled up with the frame (``at_size``). The tracker's own few fixed lengths (5x5 and
+# 15x15 rings, the keypoints' 1 and 3 px still and moving bounds) were scaled the same way
+# and changed no mask of the synthetic video at 960 px (two settings) or the basketball
+# clip at 960; the static scene's 2 px colour tolerance, scaled, cost the synthetic video
+# 0.016 and 0.012 object IoU at 960: neither is scaled
+# (docs/experiments/2026-12-02-d-pixel-lengths-on-larger-frames.md).
+SCALE_SIDE = 384
+
+
+def at_size(px: float, shape: tuple[int, ...]) -> float:
+    """``px`` pixels of a frame whose longer side is ``SCALE_SIDE`` -> pixels of a frame of
+    ``shape`` (H, W, ...): as much of the frame, never fewer than ``px``."""
+    return px * max(1.0, max(shape[0], shape[1]) / SCALE_SIDE)
 
 
 def disk(r: int) -> np.ndarray:
