@@ -77,13 +77,14 @@ MOTION_RATIO = 0.5  # a pixel's flow residual to the object's motion, at most th
 MOTION_REACH = 0.75  # of the object's size (square root of its area): how far from it pixels are tested and the person sampled
 # The object's and the person's motions must differ by at least MIN_SEPARATION px at a frame
 # whose longer side is 384 px, and by that much more on larger frames (never less than
-# MIN_SEPARATION; ``segment.at_size``): the same motion covers 2.5x the pixels at 960 as at 384. At a fixed
-# 2 px the bottle's and the guitar's development clips at the default 960 px grew the shirt,
-# torso and legs into the object (the guitar's frame 10: 26,606 -> 51,174 px); at 5 px
-# (2 px scaled from 384) neither does, while 3 and 4 px still let it in. Measured on those
-# clips at 960, the seven development clips at 384 (unchanged: the factor is 1 there) and
-# the synthetic video at eight settings at 640 (3.3 px: object mask IoU within +-0.006 of 2 px's,
-# human within 0.002; docs/experiments/2026-12-02-c-masks-larger-than-their-prompt.md).
+# MIN_SEPARATION; ``segment.at_size``): the same motion covers 2.5x the pixels at 960 as at
+# 384. At a fixed 2 px the bottle's and the guitar's development clips at the default 960 px
+# grew the shirt, torso and legs into the object (the guitar's frame 10: 26,606 -> 51,174
+# px); at 5 px (2 px scaled from 384) neither does, while 3 and 4 px still let it in.
+# Measured on those clips at 960, the seven development clips at 384 (unchanged: the factor
+# is 1 there) and the synthetic video at eight settings at 640 (3.3 px: object mask IoU
+# within +-0.006 of 2 px's, human within 0.002;
+# docs/experiments/2026-12-02-c-masks-larger-than-their-prompt.md).
 MIN_SEPARATION = 2.0
 MOTION_ROUNDS = 3
 KEEP_AREA = 0.85  # a held object's mask below this share of the previous frame's is filled back in from it
@@ -203,9 +204,9 @@ def motion_grow_frame(obj: np.ndarray, person: np.ndarray, arm: np.ndarray, flow
     (docs/experiments/2026-12-02-d-pixel-lengths-on-larger-frames.md)."""
     add = np.zeros_like(obj)
     area = int(obj.sum())
-    unit = at_size(1.0, obj.shape)  # a pixel of a 384 px frame, in this frame's pixels
     if area < 100:
         return add
+    unit = at_size(1.0, obj.shape)  # a pixel of a 384 px frame, in this frame's pixels
     o8 = obj.astype(np.uint8)
     r = round(3 * unit)
     edge = (cv2.dilate(o8, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0) & ~obj
