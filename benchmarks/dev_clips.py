@@ -51,10 +51,12 @@ CLIPS = {
 }
 # The box a user adds (`--second-prompt`) where the first prompt's track leaves the
 # object in the strip: the TV box's front face once it is tilted towards the camera (the
-# first prompt is its top face), the bottle in the hands (the first is on the floor).
+# first prompt is its top face), the bottle in the hands (the first is on the floor), the
+# racket in front of the shorts on frame 70 (the frame the lost-stretch warning names).
 SECOND_PROMPTS = {
     "loading": ["--object-box", "55", "325", "91", "528", "145"],
     "bottle": ["--object-box", "44", "310", "400", "356", "506"],
+    "tennis": ["--object-box", "70", "150", "222", "212", "255"],
 }
 
 
