@@ -1029,7 +1029,9 @@ class _Tracker:
         # starts from: a face-on racket's prompt shows fewer of its white pixels, and a
         # prompt's frame where the object or its hand lies over a limb sees more of it.
         self.colours_of_person = max(self.like_person.values(), default=0.0) >= LIKE_PERSON_SHARE
-        self.limbs_apart = tuple(sorted({kind for k, m in prompts.items() for kind in self.limbs_told_apart(k, m)}))
+        self.limbs_apart = () if not self.colours_of_person else \
+            tuple(sorted({kind for k, m in prompts.items() for kind in self.limbs_told_apart(k, m)}))
+        self._hidden: tuple[int, np.ndarray] | None = None  # the last frame's ``_hidden_on_person``
         self.use(next(iter(prompts)))
         self.masks: np.ndarray | None = None  # [T, H, W] bool: the frames found so far (``run``'s masks)
         self._scene_maps: dict[tuple, tuple] = {}  # (frame, references) -> (maps or None, residual noise)
@@ -1048,14 +1050,20 @@ class _Tracker:
         for a white racket held in front of a white shirt, under 0.2 for objects whose
         colours are not the person's clothes' (``LIKE_PERSON_SHARE``); 0 without person
         masks."""
-        import cv2
-
         if self.human_probs is None:
             return 0.0
-        person = (self.human_probs[k] > 127) & ~(cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0)
+        person, like = self._person_and_lookalike(k, mask)
         if not person.any():
             return 0.0
-        return float((self.appearance[k][0].prob(self.images[k])[person] > 0.5).mean())
+        return float(like[person].mean())
+
+    def _person_and_lookalike(self, k: int, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """([H, W] bool: the person's pixels on prompt k's frame off its ``mask`` by a few
+        pixels, [H, W] bool: the pixels the prompt's own colour model calls object)."""
+        import cv2
+
+        person = (self.human_probs[k] > 127) & ~(cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0)
+        return person, self.appearance[k][0].prob(self.images[k]) > 0.5
 
     def limbs_told_apart(self, k: int, mask: np.ndarray) -> tuple[str, ...]:
         """The kinds of limb (``limb_regions``) whose pixels on prompt k's frame (the
@@ -1064,12 +1072,9 @@ class _Tracker:
         least ``MIN_LIMB_PIXELS`` of them: in front of those (a white racket before black
         shorts) the object can be told from the person. () without person masks or
         keypoints."""
-        import cv2
-
         if self.human_probs is None or self.kp2d is None:
             return ()
-        person = (self.human_probs[k] > 127) & ~(cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0)
-        like = self.appearance[k][0].prob(self.images[k]) > 0.5
+        person, like = self._person_and_lookalike(k, mask)
         told = []
         for kind, region in limb_regions(self.kp2d[k], mask.shape).items():
             seen = like[person & region]
@@ -1093,13 +1098,18 @@ class _Tracker:
         seen or it covers under ``BODY_COVER`` of them): in front of those, an object
         coloured like the person's clothes cannot be told from them. What the person's mask
         takes in beyond the body (a racket held out beside the legs) can."""
+        if self._hidden is not None and self._hidden[0] == t:
+            return self._hidden[1]  # asked again within a frame's step (the search, then its find)
         person = self._person(t)
         body = None if self.kp2d is None else body_regions(self.kp2d[t], person.shape)
         if body is None or (person & body).sum() < BODY_COVER * person.sum():
-            return person  # the landmarks do not say where the body is (a seated, half-hidden person)
-        if self.limbs_apart:
-            body = body_regions(self.kp2d[t], person.shape, leave_out=self.limbs_apart)
-        return person & body
+            hidden = person  # the landmarks do not say where the body is (a seated, half-hidden person)
+        elif self.limbs_apart:
+            hidden = person & body_regions(self.kp2d[t], person.shape, leave_out=self.limbs_apart)
+        else:
+            hidden = person & body
+        self._hidden = (t, hidden)
+        return hidden
 
     def on_person(self, t: int, mask: np.ndarray) -> bool:
         """Whether frame t's ``mask`` lies mostly (``ON_PERSON_SHARE``) on the person's
