@@ -1080,6 +1080,34 @@ def test_an_object_coloured_like_the_clothes_is_found_where_the_persons_mask_tak
     assert all(ious[t] > 0.7 and conf[t] >= 0.2 and (masks[t] & gt[t]).sum() >= 0.95 * masks[t].sum() for t in (4, 5)), (ious, conf)
 
 
+def test_an_object_coloured_like_the_person_is_found_where_it_moves_at_a_hand_though_never_seen_carried():
+    # Held by its far side (the hand's points 24 px off it, as a racket's head lies a
+    # handle's length from the palm), the object is never seen carried. Out of view for two
+    # frames, it comes back further along with a face the colour model calls background.
+    # Coloured like the person's clothes (the arm here), it is looked for off the person
+    # only, so what moves at the hand and is not the person is what finds it again.
+    from cogs.preprocess import tracking
+
+    images, gt, _, person, kp = _held_object_clip(T=9, new_face_from=5, hidden=(3, 4), speed=14)
+    kp[:, :, 1] -= 24
+    hands = tracking.hand_points(kp)
+    assert all(tracking.carrying_hand(hands, t, t + 1, gt[t], gt[t + 1]) is None for t in (0, 1, 5, 6, 7))
+    images[person > 127] = (235, 120, 30)  # the arm in the object's colours
+    like, cues = {}, []
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp, like_person=like, cues=cues)
+    assert like[0] >= tracking.LIKE_PERSON_SHARE, like
+    assert not masks[3].any() and not masks[4].any()
+    assert cues[5] == "moving", cues
+    for t in range(5, 9):
+        assert _iou(masks[t], gt[t]) > 0.7 and 0 < conf[t] <= 0.5, (t, cues, conf)
+    # The other way round, an object unlike the person needs the carry seen first: what moves
+    # near a hand that never held it may be anything else the hand passes.
+    images, gt, _, person, kp = _held_object_clip(T=9, new_face_from=5, hidden=(3, 4), speed=14)
+    kp[:, :, 1] -= 24
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp)
+    assert not masks[5:].any() and not conf[5:].any()
+
+
 def test_a_piece_grabcut_cuts_out_of_a_refound_object_yields_to_the_whole_window(monkeypatch):
     # On the basketball clip GrabCut re-found a dribbled ball as one panel between its
     # seams, the rest of the ball all round it. That GrabCut failure is forced here (only

@@ -25,7 +25,11 @@ takes the first of four cues that holds (``_Tracker._step``):
    carried is looked for only where a hand has been since (``HAND_PATH_REACH``);
 3. **hand**: for a few frames after an object seen carried by a hand was lost, the
    moving piece off the person at either hand (``moving_at_hand``): a handled object
-   that turns shows faces no colour model has seen. Without a static scene to compare
+   that turns shows faces no colour model has seen. An object coloured like the
+   person's clothes is looked for there whether or not a carry was seen: held by its far
+   end (a racket a handle's length from the palm) it never passes the carry test, and
+   the colour search, which skips the body, misses it wherever a face-on view shows the
+   scene through it or a swing blurs it into the scene. Without a static scene to compare
    with, GrabCut next to the carrying hand, off the person (``segment.grabcut_at_hand``);
    that find must differ from the previous frame with the background's motion undone
    (``_Tracker._unchanged``: a patch of background beside the hand does not), and it is
@@ -1396,6 +1400,12 @@ class _Tracker:
         st.held = st.carried >= 2
         st.mask, st.visible, st.t, st.colour = f.extent, f.visible, t, f.colour
         self.bank.add(t, f.visible)
+        if self.colours_of_person and f.colour < self.min_score * self.ref_score:
+            # Found by its motion alone (at a hand, or fitted on from there): a racket's
+            # outline with the scene seen through its strings or blurred into its swing. The
+            # colour search, its only way back onto it beside the body, would learn the
+            # scene's colours from it (the tennis clip's racket lost at 37-42 after 29-32).
+            return model
         return self._adapted(t, f.visible)
 
     def _near_a_hand(self, t: int, mask: np.ndarray, reach: float, which: tuple = (0, 1)) -> bool:
@@ -1590,9 +1600,11 @@ class _Tracker:
         # 3. The hand: an object carried for a while is still in that hand, whatever face
         #    it now shows (for a few frames; past them it may have been put down): what
         #    moves there and is not the person or, without a static scene to tell what
-        #    moves, GrabCut next to the hand (which also takes a piece of background).
+        #    moves, GrabCut next to the hand (which also takes a piece of background). An
+        #    object coloured like the person is looked for at the hands carried or not
+        #    (``_moving_at_hands``).
         h = st.carrier
-        if st.carried >= 2 and maps is not None:
+        if (st.carried >= 2 or self.colours_of_person) and maps is not None:
             at_hand = self._moving_at_hands(t, st, moving, hands, prob)
             if at_hand is not None:
                 return at_hand
@@ -1611,11 +1623,19 @@ class _Tracker:
 
     def _moving_at_hands(self, t: int, st: _State, moving: np.ndarray, hands: np.ndarray, prob: np.ndarray) -> _Found | None:
         """Cue 3 with a static scene: what moves at the carrying hand (or the other one) and
-        is not the person, if it is about the object's size; None otherwise."""
+        is not the person, if it is about the object's size; None otherwise.
+
+        An object coloured like the person's clothes is looked for at either visible hand
+        even where no carry was seen (the carrying hand first, if one was): the colour
+        search skips the body for it, and a racket held by its handle is never seen
+        carried, its head lying a handle's length from the palm (0.6-1.3 of its size on
+        the tennis clip, where ``carrying_hand`` asks for 0.3). Only that clip's racket is
+        coloured like the person among the development clips and the synthetic video
+        (docs/experiments/2026-12-03-c-a-racket-found-where-it-moves-at-the-hand.md)."""
         h = st.carrier
-        if st.carried < 2:
+        if st.carried < 2 and not self.colours_of_person:
             return None
-        for k in (h, 1 - h):
+        for k in ((0, 1) if h is None else (h, 1 - h)):
             if not _visible(self.hands, t, k):
                 continue
             seg = moving_at_hand(moving, self.hands[t, k, :2], float(np.sqrt(st.area)), self.convex)
