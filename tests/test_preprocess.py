@@ -1100,6 +1100,22 @@ def test_an_object_coloured_like_the_person_is_found_where_it_moves_at_a_hand_th
     assert cues[5] == "moving", cues
     for t in range(5, 9):
         assert _iou(masks[t], gt[t]) > 0.7 and 0 < conf[t] <= 0.5, (t, cues, conf)
+    # Such a find shows what the colour model calls background (the scene through a
+    # racket's strings, a swing's blur): the model learns nothing from it, where a find that
+    # looks like the object still adapts it.
+    tracker = tracking._Tracker(images, None, None, person, kp, 0.5, 0.1, 0.5, 4, prompts={0: gt[0]})
+    model = tracker._adapted(0, gt[0])
+
+    def update(t):
+        c, size = tracking.mask_stats(gt[t - 1])
+        st = tracking._State(c, np.zeros(2), size, gt[t - 1], gt[t - 1], t - 1, 1.0, float(gt[0].sum()))
+        colour = float(model.prob(images[t])[gt[t]].mean())
+        return colour, tracker._update(st, t, 1, tracking._Found(gt[t], gt[t], 0.5, "moving", colour), model)
+
+    colour, after = update(6)
+    assert colour < tracker.min_score * tracker.ref_score and after is model
+    colour, after = update(2)
+    assert colour >= tracker.min_score * tracker.ref_score and after is not model
     # The other way round, an object unlike the person needs the carry seen first: what moves
     # near a hand that never held it may be anything else the hand passes.
     images, gt, _, person, kp = _held_object_clip(T=9, new_face_from=5, hidden=(3, 4), speed=14)
