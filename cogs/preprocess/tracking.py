@@ -1033,8 +1033,8 @@ class _Tracker:
         # starts from: a face-on racket's prompt shows fewer of its white pixels, and a
         # prompt's frame where the object or its hand lies over a limb sees more of it.
         self.colours_of_person = max(self.like_person.values(), default=0.0) >= LIKE_PERSON_SHARE
-        self.limbs_apart = () if not self.colours_of_person else \
-            tuple(sorted({kind for k, m in prompts.items() for kind in self.limbs_told_apart(k, m)}))
+        self.limbs_apart = (tuple(sorted({kind for k, m in prompts.items() for kind in self.limbs_told_apart(k, m)}))
+                            if self.colours_of_person else ())
         self._hidden: tuple[int, np.ndarray] | None = None  # the last frame's ``_hidden_on_person``
         self.use(next(iter(prompts)))
         self.masks: np.ndarray | None = None  # [T, H, W] bool: the frames found so far (``run``'s masks)
@@ -1602,9 +1602,9 @@ class _Tracker:
         #    moves there and is not the person or, without a static scene to tell what
         #    moves, GrabCut next to the hand (which also takes a piece of background). An
         #    object coloured like the person is looked for at the hands carried or not
-        #    (``_moving_at_hands``).
+        #    (``_moving_at_hands`` says which it looks for).
         h = st.carrier
-        if (st.carried >= 2 or self.colours_of_person) and maps is not None:
+        if maps is not None:
             at_hand = self._moving_at_hands(t, st, moving, hands, prob)
             if at_hand is not None:
                 return at_hand
