@@ -1725,6 +1725,31 @@ def test_background_residual_prefers_the_rotations_without_a_jump():
     assert found < 1.1 * truth + 0.5, (found, truth)
 
 
+def test_a_camera_path_that_teleports_is_told_from_a_walk():
+    # A camera walking at 1.5 m/s past points about 4 m away (30 fps) moves 0.375 scene
+    # depths per second, at any frame rate it is sampled at and across frames that are not
+    # registered; the same path with a 1.2 m jump between two frames and back, as COLMAP gave
+    # the tennis clip's panning camera, moves 9 depths per second there and is refused.
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-3, 3, 400), rng.uniform(-2, 2, 400), rng.uniform(3.5, 4.5, 400)])
+    T = 60
+    w2c = np.tile(np.eye(4), (T, 1, 1))
+    w2c[:, 0, 3] = -1.5 * np.arange(T) / 30.0  # centre at x = 1.5 t
+    every = np.ones(T, bool)
+    speed, a, b = S.fastest_move(w2c, every, points, 30.0)
+    depth = float(np.median(points[:, 2]))  # the cameras look along +z
+    assert speed == pytest.approx(1.5 / depth, rel=0.05) and speed < S.MAX_CAMERA_SPEED
+    assert S.fastest_move(w2c[::3], every[::3], points, 10.0)[0] == pytest.approx(speed, rel=1e-9)
+    gaps = every.copy()
+    gaps[10:40] = False
+    assert S.fastest_move(w2c, gaps, points, 30.0)[0] == pytest.approx(speed, rel=1e-9)
+    jumped = w2c.copy()
+    jumped[20:30, 0, 3] -= 1.2
+    speed, a, b = S.fastest_move(jumped, every, points, 30.0)
+    assert speed > S.MAX_CAMERA_SPEED and (a, b) in [(19, 20), (29, 30)], (speed, a, b)
+    assert S.fastest_move(w2c, np.zeros(T, bool), points, 30.0) == (0.0, -1, -1)
+
+
 def test_unregistered_frames_get_interpolated_poses():
     a, b = np.eye(4), np.eye(4)
     b[:3, :3] = _rot(2, 40.0)

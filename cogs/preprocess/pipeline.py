@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 CACHE_VERSION = 1
 PERSONS_VERSION = 7  # of the persons step (2: a body the detector cannot find is followed without the face; 4: landmarks re-detected where video tracking lost the body; 5: bodies laid on a hand dropped; 6: a followed person never takes somebody else's face; 7: frames the detector missed between or beside frames it found the person in are followed into by the landmark model)
 TRACKER_VERSION = 23  # of the classical object tracker (5: a prompt in a hand starts carried by it; unclear masks get confidence 0.1; 6: an unclear GrabCut piece yields to the colour window; 7: masks along a forearm get confidence 0.1; 8: and the frames a motion cue followed them into; 9: the static scene judged after a long loss too; 10: an object lost while carried searched for where a hand has been; 11: GrabCut's spread onto a foot dropped; 12: doubtful runs tracked again from their other side; 13: a foot seen end-on sized from its shin; 14: a mask's parts that hold still with the room while the rest moves left out; 15: a clear view next to a hand does not end a carry; 16: nor does the other hand taking it over; 17: an object coloured like the person is looked for off the person, near the hands; 18: a prompt a pass sees carried starts carried in the pass the other way, and a motion fit in other colours is kept last where it moves; 19: the frames it was lost in judge the static scene too where the warp from those that found it fails; 20: discs over 128 px grown by a distance transform, where a dilation by OpenCV's digital ellipse took seconds; 21: a mask over 3x its prompt's area not trusted; 22: an object coloured like the person looked for off the body's landmark regions, not off the whole person's mask, nor off limbs dressed in other colours, from every prompt alike; 23: and found as what moves at either hand though never seen carried, its colour model kept from finds that do not look like it): bumping it redoes the object masks (and what reads them)
-SFM_VERSION = 4  # of the cameras step (2: COLMAP's two-view RANSAC seeded, its features extracted and bundles adjusted on one thread; 3: without parallax, COLMAP's rotations or the homography chain, whichever explains the background better; 4: features matched exactly by us, so the same frames give the same cameras): bumping it redoes the cameras
+SFM_VERSION = 5  # of the cameras step (2: COLMAP's two-view RANSAC seeded, its features extracted and bundles adjusted on one thread; 3: without parallax, COLMAP's rotations or the homography chain, whichever explains the background better; 4: features matched exactly by us, so the same frames give the same cameras; 5: a camera path faster than MAX_CAMERA_SPEED keeps only its rotations): bumping it redoes the cameras
 MASKS_VERSION = 11  # of the body-based mask refinement (`bodymasks.py`; 5: no growth of a whole mask, no body where its fit is off; 6: nor a mask smaller than where the tracker saw the object clearly; 7: a mask's specks left out of its solidity; 8: the person's and the object's outlines moved onto the frame's edges; 9: the ring round a held object over 128 px grown by a distance transform; 10: the object's and the person's motions told apart by 2 px per 384 px of the frame's longer side, not 2 px; 11: the motion growth's other lengths so scaled, the held-in-front ring, the core and the ring the person's motion is sampled on): bumping it redoes the masks step
 BODY_VERSION = 6  # of the body fit (`bodyfit.py`, `world.py`; 4: the scale from the person's motion where nothing else gives it; 5: the ground only where a foot is seen; 6: that scale taken from 5 % explained, not 20 %): bumping it redoes the body step
 OBJECT_POSE_VERSION = 8  # of the initial object trajectory (`objectfit.py`; 8: doubted masks away from the hands left out, trusted ones may rest; 7: an object lost for good while carried stays in the hand to the clip's end, one first seen carried was in it from the start): bumping it redoes the object_pose step
@@ -638,13 +638,21 @@ class _Runner:
             w2c, reg = S.fill_unregistered(poses, T)
             frac = reg.mean()
             parallax = S.parallax_ratio(w2c, reg, xyz)
-            stats["colmap"].update(registered_fraction=float(frac), parallax=parallax)
+            speed, a, b = S.fastest_move(w2c, reg, xyz, self.fps)
+            stats["colmap"].update(registered_fraction=float(frac), parallax=parallax, fastest_move=speed)
             enough_points = len(xyz) >= max(100, 5 * int(reg.sum()))
-            if frac >= cfg.min_registered and parallax >= cfg.min_parallax and enough_points:
+            physical = speed <= S.MAX_CAMERA_SPEED
+            if frac >= cfg.min_registered and parallax >= cfg.min_parallax and physical and enough_points:
                 method = "colmap"
             elif frac >= cfg.min_registered and enough_points:
-                # Rotations are good, but the points have no usable depth: keep the rotations
-                # and fix the centre (a tripod-like clip).
+                # Rotations are good, but the points have no usable depth (a tripod-like clip)
+                # or the camera's path is not one a camera can take: keep the rotations and fix
+                # the centre.
+                if not physical:
+                    stats["colmap"]["jump"] = [a, b]
+                    log.info("structure from motion moves the camera %.1f scene depths per second between frames %d and "
+                             "%d (at most %.1f is taken for a real path): its camera positions are dropped and only its "
+                             "rotations kept", speed, a, b, S.MAX_CAMERA_SPEED)
                 w2c[:, :3, 3] = 0.0  # every camera at the world origin
                 method, xyz, rgb = "colmap-rotation", np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
             if method == "colmap-rotation" and cfg.sfm == "auto":

@@ -485,6 +485,36 @@ def parallax_ratio(w2c: np.ndarray, registered: np.ndarray, points: np.ndarray) 
     return spread / max(med, 1e-9)
 
 
+MAX_CAMERA_SPEED = 4.0
+"""Fastest a reconstruction's camera centre may move between two posed frames, in median
+scene depths per second, before its positions are taken for a failed solution and only its
+rotations kept. Measured with ``fastest_move``: the synthetic video benchmark's clip 0.18
+(40 frames at 10 fps, a 10-second script in 4 seconds; at 30 fps with 20 frames it would be
+1.1), the backpack clip 0.43 and the loading clip 0.57 (both walking hand-held cameras), the
+tennis clip 0.29 and 8.9 with two of COLMAP's solutions for its panning camera: in the
+second the camera teleports 3.2 m (0.3 of the scene's depth) between frames 4 and 5, back
+and forth again by frame 30, and stands still after frame 48; the floor then came from a
+plane of 68 stray points 2-3 m above the court and the body fit went from 0.088 to 0.12
+(docs/experiments/2026-12-03-d-a-camera-that-teleports.md). A person walking with the
+camera 1 m from the scene moves 1.5 depths per second."""
+
+
+def fastest_move(w2c: np.ndarray, registered: np.ndarray, points: np.ndarray, fps: float) -> tuple[float, int, int]:
+    """(speed, a, b): the camera centre's fastest move between consecutive registered frames
+    a < b, in median scene depths per second (the depth as in ``parallax_ratio``; frames
+    between a and b that are not registered count in the time). (0, -1, -1) with fewer than
+    two registered frames or no points."""
+    idx = np.flatnonzero(registered)
+    if len(idx) < 2 or len(points) == 0:
+        return 0.0, -1, -1
+    R, t = w2c[idx, :3, :3], w2c[idx, :3, 3]
+    centres = -np.einsum("tji,tj->ti", R, t)
+    depth = float(np.median(np.abs(np.median(points @ R[:, 2, :].T + t[:, 2], axis=0))))  # [P, T] z in each camera
+    speed = np.linalg.norm(np.diff(centres, axis=0), axis=1) / np.diff(idx) * fps / max(depth, 1e-9)
+    i = int(np.argmax(speed))
+    return float(speed[i]), int(idx[i]), int(idx[i + 1])
+
+
 # -- rotation-only fallback -----------------------------------------------------------
 
 
