@@ -1409,6 +1409,36 @@ def test_a_second_prompt_restores_a_track_that_drifted_to_a_look_alike():
     assert (conf > 0).all()
 
 
+def test_a_racket_face_on_is_the_thick_piece_at_the_hand_once_its_strings_are_filled():
+    # What moves of a racket over a look-alike banner: a 1-px frame round strings that
+    # show the banner and a 1-px handle from the palm. The opening takes it all; told the
+    # person, the piece at the hand is the filled head and its handle, while a sliver
+    # (a seam of the banner that the warp misses) stays out.
+    import cv2
+
+    from cogs.preprocess.tracking import moving_at_hand
+
+    H, W = 120, 160
+    yy, xx = np.mgrid[:H, :W]
+    person = (xx < 60) & (yy > 30)
+    hand = np.array([62.0, 60.0])
+    ring = np.zeros((H, W), np.uint8)
+    cv2.ellipse(ring, (100, 40), (12, 18), 30, 0, 360, 1, 1)
+    head = np.zeros((H, W), np.uint8)
+    cv2.ellipse(head, (100, 40), (12, 18), 30, 0, 360, 1, -1)
+    handle = np.zeros((H, W), np.uint8)
+    cv2.line(handle, (64, 60), (92, 52), 1, 1)
+    moving = (ring | handle).astype(bool) & ~person
+    size = 20.0
+    assert not moving_at_hand(moving, hand, size).any()
+    found = moving_at_hand(moving, hand, size, person=person)
+    assert _iou(found, (head | handle).astype(bool)) > 0.9
+    sliver = (np.abs(xx + 0.5 - 80) <= 0.5) & (yy > 55) & (yy < 110)
+    assert not moving_at_hand(sliver, hand, size, person=person).any()
+    outline = (xx >= 60) & (xx <= 61) & (yy > 30)  # what MediaPipe's mask leaves along the arm
+    assert not moving_at_hand(outline, hand, size, person=person).any()
+
+
 def test_between_two_prompts_the_switch_is_where_each_pass_still_holds_the_object():
     from cogs.preprocess.tracking import combine_passes
 
@@ -1428,6 +1458,30 @@ def test_between_two_prompts_the_switch_is_where_each_pass_still_holds_the_objec
     bwd[:7] = False  # they never agree (7..8 on different things): each keeps its reach
     bwd[7:9] = np.roll(obj[7:9], 6, axis=2)
     assert combine_passes(fwd, bwd) == 7 and combine_passes(obj, obj) == 5  # all agree: the middle
+
+
+def test_a_pass_that_holds_the_object_on_from_the_switch_keeps_the_frames_the_other_lost():
+    from cogs.preprocess.tracking import beyond_the_switch, combine_passes
+
+    n, H, W = 12, 20, 20
+    obj = np.zeros((n, H, W), bool)
+    obj[:, 5:10, 5:10] = True
+    fwd, bwd = obj.copy(), obj.copy()
+    fwd[1:3] = False  # the first prompt's pass loses the object at once, finds it again at 3 ...
+    fwd[9:] = False  # ... and holds it to 8
+    bwd[4:9] = False  # the second's holds it from 11 down to 9, loses it, finds it again at 3
+    bwd[3] = np.roll(obj[3], 1, axis=1)
+    switch = combine_passes(fwd, bwd)
+    assert switch == 3  # where both are on the object (neither pass reaches the other's prompt)
+    second = beyond_the_switch(fwd, bwd, switch)
+    # 4-8 from the first pass, which held on from the switch, not from the second, which
+    # lost them; 1-2 from the second, which holds them from the switch, where the first lost them
+    assert second.tolist() == [False] + [True] * 3 + [False] * 5 + [True] * 3
+    assert np.array_equal(beyond_the_switch(fwd, np.roll(bwd, 6, axis=2), switch), np.arange(n) >= switch)  # no agreement there
+    both = obj.copy()
+    both[8:] = np.roll(obj[8:], 6, axis=2)  # the first pass drifts at 8; the second holds throughout
+    switch = combine_passes(both, obj)
+    assert np.array_equal(beyond_the_switch(both, obj, switch), np.arange(n) >= switch)  # within both reaches: as before
 
 
 def test_a_negative_box_keeps_the_track_off_what_it_marks():

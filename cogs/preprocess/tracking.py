@@ -717,12 +717,18 @@ def carrying_hand(hands: np.ndarray | None, t0: int, t1: int, m0: np.ndarray, m1
     return best
 
 
-def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float, convex: bool = False) -> np.ndarray:
+def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float, convex: bool = False,
+                   person: np.ndarray | None = None) -> np.ndarray:
     """The moving thing a hand at pixel ``hand`` (x, y) holds -> [H, W] bool, empty when
     none: of ``moving`` [H, W] bool (pixels that are neither static scene nor the person),
     after an opening that drops the slivers left along the person's outline, the largest
     piece within 1.5 ``size`` (the object's side, pixels) of the hand (MediaPipe's hand
     points are the palm's, and an object may be held by its corner).
+
+    Given the ``person`` [H, W] bool, the slivers are dropped as what lies next to the
+    person and as pieces that are thin throughout, instead of by the opening: a racket's
+    head face-on moves as a 1-2 px frame round strings that show the scene behind, and its
+    handle is as thin, so the opening takes both; its head with the holes filled is thick.
 
     The piece may be less solid than a GrabCut find (solidity 0.7): where the object's
     colour happens to match the scene behind it, the static scene bites into it. For a
@@ -732,7 +738,10 @@ def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float, convex: bo
 
     H, W = moving.shape
     r = max(1, int(0.05 * size))
-    opened = cv2.morphologyEx(moving.astype(np.uint8), cv2.MORPH_OPEN, disk(r))
+    if person is None:
+        opened = cv2.morphologyEx(moving.astype(np.uint8), cv2.MORPH_OPEN, disk(r))
+    else:
+        opened = (moving & ~cv2.dilate(person.astype(np.uint8), disk(r)).astype(bool)).astype(np.uint8)
     n, comp, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
     if n <= 1:
         return np.zeros((H, W), bool)
@@ -745,6 +754,8 @@ def moving_at_hand(moving: np.ndarray, hand: np.ndarray, size: float, convex: bo
     piece = fill_holes(comp == best)
     if solidity(piece) < 0.7:
         return np.zeros((H, W), bool)
+    if person is not None and cv2.morphologyEx(piece.astype(np.uint8), cv2.MORPH_OPEN, disk(r)).sum() < 0.5 * piece.sum():
+        return np.zeros((H, W), bool)  # thin throughout: a sliver
     return convex_hull(piece) if convex else piece
 
 
@@ -1640,6 +1651,11 @@ class _Tracker:
                 continue
             seg = moving_at_hand(moving, self.hands[t, k, :2], float(np.sqrt(st.area)), self.convex)
             visible = seg & ~hands
+            if visible.sum() < 0.4 * st.area and self.colours_of_person and self.human_probs is not None:
+                # Face-on over the banner a racket's head moves as a 1-2 px frame round strings
+                # that show the banner.
+                seg = moving_at_hand(moving, self.hands[t, k, :2], float(np.sqrt(st.area)), self.convex, self._person(t))
+                visible = seg & ~hands
             if 0.4 * st.area <= visible.sum() <= 2.5 * st.area:
                 return _Found(visible, visible, 0.5, "moving", float(prob[visible].mean()))
         return None
@@ -1801,9 +1817,10 @@ def propagate_masks(
             passes.append((m, c, cu, w))
         (ma, ca, cua, wa), (mb, cb, cub, wb) = passes
         switch = combine_passes(ma[a : b + 1], mb[a : b + 1]) + a
+        second = beyond_the_switch(ma[a : b + 1], mb[a : b + 1], switch - a)
         log.debug("prompts %d and %d: frames from %d on take the second's pass", a, b, switch)
         for t in range(a + 1, b):
-            src = (ma, ca, cua, a, wa) if t < switch else (mb, cb, cub, b, wb)
+            src = (mb, cb, cub, b, wb) if second[t - a] else (ma, ca, cua, a, wa)
             masks[t], conf[t], found[t], origin[t], way[t] = src[0][t], src[1][t], src[2][t], src[3], src[4][t]
         done[0] -= b - a + 1  # two passes cover these frames (and reach the prompts): the bar counts each once
         if on_frame:
@@ -1910,6 +1927,39 @@ def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found:
     if changed:
         log.debug("object frames whose tracks from both sides disagree: %s", changed)
     return changed
+
+
+def beyond_the_switch(forward: np.ndarray, backward: np.ndarray, switch: int, agree: float = 0.5) -> np.ndarray:
+    """Which pass each frame between two prompts takes -> [n] bool, True for ``backward``:
+    frames before ``switch`` (``combine_passes``) the forward pass, from it on the backward
+    one, except beyond the reach of the pass a frame would take (it lost the object
+    somewhere between its prompt and that frame) where the other pass, on the same object
+    as it at the switch (mask IoU at least ``agree``), holds the object without a gap from
+    the switch to that frame. A pass that goes on holding the object from where both
+    agreed is as good as one from a prompt; the one beyond its reach found it again after
+    losing it, or not at all. Where the switch lies within both passes' reach, nothing
+    changes.
+
+    On the tennis clip the forward pass held the racket from the switch (frame 40, IoU
+    0.93) over the banner to frame 50, where the backward one had lost it from 59 down to
+    45 (docs/experiments/2026-12-03-e-a-thin-racket-over-the-banner.md)."""
+    n = len(forward)
+    second = np.arange(n) >= switch
+    if not 0 < switch < n or iou(forward[switch], backward[switch]) < agree:
+        return second
+    found_f = forward.reshape(n, -1).any(1)
+    found_b = backward.reshape(n, -1).any(1)
+    reach_f = n - 1 if found_f.all() else int(np.argmin(found_f)) - 1
+    reach_b = 0 if found_b.all() else n - int(np.argmin(found_b[::-1]))
+    t = switch + 1
+    while t < min(reach_b, n - 1) and found_f[t]:  # forward on from the switch, where backward has lost it
+        second[t] = False
+        t += 1
+    t = switch - 1
+    while t > max(reach_f, 0) and found_b[t]:  # backward on from the switch, where forward has lost it
+        second[t] = True
+        t -= 1
+    return second
 
 
 def combine_passes(forward: np.ndarray, backward: np.ndarray, agree: float = 0.5) -> int:
