@@ -1947,19 +1947,28 @@ def beyond_the_switch(forward: np.ndarray, backward: np.ndarray, switch: int, ag
     second = np.arange(n) >= switch
     if not 0 < switch < n or iou(forward[switch], backward[switch]) < agree:
         return second
+    found_f, found_b, reach_f, reach_b = _reaches(forward, backward)
+    t = switch + 1
+    while t < min(reach_b, n - 1) and found_f[t]:  # forward on from the switch, beyond backward's reach
+        second[t] = False
+        t += 1
+    t = switch - 1
+    while t > max(reach_f, 0) and found_b[t]:  # backward on from the switch, beyond forward's reach
+        second[t] = True
+        t -= 1
+    return second
+
+
+def _reaches(forward: np.ndarray, backward: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """(found_f, found_b, reach_f, reach_b) of two passes between prompts at frames 0 and
+    n - 1: the frames each found, the last frame of the forward pass's unbroken run from 0
+    and the first frame of the backward pass's unbroken run back from n - 1."""
+    n = len(forward)
     found_f = forward.reshape(n, -1).any(1)
     found_b = backward.reshape(n, -1).any(1)
     reach_f = n - 1 if found_f.all() else int(np.argmin(found_f)) - 1
     reach_b = 0 if found_b.all() else n - int(np.argmin(found_b[::-1]))
-    t = switch + 1
-    while t < min(reach_b, n - 1) and found_f[t]:  # forward on from the switch, where backward has lost it
-        second[t] = False
-        t += 1
-    t = switch - 1
-    while t > max(reach_f, 0) and found_b[t]:  # backward on from the switch, where forward has lost it
-        second[t] = True
-        t -= 1
-    return second
+    return found_f, found_b, reach_f, reach_b
 
 
 def combine_passes(forward: np.ndarray, backward: np.ndarray, agree: float = 0.5) -> int:
@@ -1986,10 +1995,7 @@ def combine_passes(forward: np.ndarray, backward: np.ndarray, agree: float = 0.5
     assert n == len(backward) and n >= 2
     if n == 2:
         return 1
-    found_f = forward.reshape(n, -1).any(1)
-    found_b = backward.reshape(n, -1).any(1)
-    reach_f = n - 1 if found_f.all() else int(np.argmin(found_f)) - 1  # last frame of the unbroken run from frame 0
-    reach_b = 0 if found_b.all() else n - int(np.argmin(found_b[::-1]))  # first frame of the run back from n - 1
+    _, _, reach_f, reach_b = _reaches(forward, backward)
     lo, hi = max(1, reach_b), min(n - 1, reach_f + 1)
     lo, hi = min(lo, hi), max(lo, hi)
     cand = np.arange(lo, hi + 1)
