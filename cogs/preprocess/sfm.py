@@ -477,12 +477,18 @@ def parallax_ratio(w2c: np.ndarray, registered: np.ndarray, points: np.ndarray) 
     """Spread of the registered camera centres over the median point depth (0 = pure rotation)."""
     if registered.sum() < 2 or len(points) == 0:
         return 0.0
-    R, t = w2c[registered, :3, :3], w2c[registered, :3, 3]
-    centres = -np.einsum("tji,tj->ti", R, t)
+    centres, depth = _centres_and_depth(w2c[registered], points)
     spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max())
+    return spread / max(depth, 1e-9)
+
+
+def _centres_and_depth(w2c: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centres [T, 3], depth): the cameras' centres and the median over cameras of the
+    median depth of ``points`` in each (absolute)."""
+    R, t = w2c[:, :3, :3], w2c[:, :3, 3]
+    centres = -np.einsum("tji,tj->ti", R, t)
     depth = np.median([(points @ R[i].T + t[i])[:, 2] for i in range(len(R))], axis=1)
-    med = float(np.median(np.abs(depth)))
-    return spread / max(med, 1e-9)
+    return centres, float(np.median(np.abs(depth)))
 
 
 MAX_CAMERA_SPEED = 4.0
@@ -507,9 +513,7 @@ def fastest_move(w2c: np.ndarray, registered: np.ndarray, points: np.ndarray, fp
     idx = np.flatnonzero(registered)
     if len(idx) < 2 or len(points) == 0:
         return 0.0, -1, -1
-    R, t = w2c[idx, :3, :3], w2c[idx, :3, 3]
-    centres = -np.einsum("tji,tj->ti", R, t)
-    depth = float(np.median(np.abs(np.median(points @ R[:, 2, :].T + t[:, 2], axis=0))))  # [P, T] z in each camera
+    centres, depth = _centres_and_depth(w2c[idx], points)
     speed = np.linalg.norm(np.diff(centres, axis=0), axis=1) / np.diff(idx) * fps / max(depth, 1e-9)
     i = int(np.argmax(speed))
     return float(speed[i]), int(idx[i]), int(idx[i + 1])

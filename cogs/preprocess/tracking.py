@@ -1651,7 +1651,7 @@ class _Tracker:
                 continue
             seg = moving_at_hand(moving, self.hands[t, k, :2], float(np.sqrt(st.area)), self.convex)
             visible = seg & ~hands
-            if visible.sum() < 0.4 * st.area and self.colours_of_person and self.human_probs is not None:
+            if visible.sum() < 0.4 * st.area and self.colours_of_person:  # which implies person masks
                 # Face-on over the banner a racket's head moves as a 1-2 px frame round strings
                 # that show the banner.
                 seg = moving_at_hand(moving, self.hands[t, k, :2], float(np.sqrt(st.area)), self.convex, self._person(t))
