@@ -492,18 +492,19 @@ def _centres_and_depth(w2c: np.ndarray, points: np.ndarray) -> tuple[np.ndarray,
 
 
 MAX_CAMERA_SPEED = 4.0
-"""Fastest a reconstruction's camera centre may move between two posed frames, in median
-scene depths per second, before its positions are taken for a failed solution and only its
+"""Fastest a reconstruction's camera centre may move between two posed frames, in median scene
+depths per second, before its positions are taken for a failed solution and only its
 rotations kept. Measured with ``fastest_move``: the synthetic video benchmark's clip 0.18
 (40 frames at 10 fps, a 10-second script in 4 seconds); on the synthetic scene's true
 cameras 0.07 (the demo scene: 100 frames at 10 fps), 0.63 (30 at 24 fps, seed 3), 1.22 (20
-at 30 fps, seed 1) and 2.43 (20 at 60 fps, seed 2: the script in a third of a second); the backpack clip 0.43 and the loading clip 0.57 (both walking hand-held cameras), the
-tennis clip 0.29 and 8.9 with two of COLMAP's solutions for its panning camera: in the
-second the camera teleports 3.2 m (0.3 of the scene's depth) between frames 4 and 5, back
-and forth again by frame 30, and stands still after frame 48; the floor then came from a
-plane of 68 stray points, a median 2.9 m above the court's, and the body fit went from
-0.088 to 0.12 (docs/experiments/2026-12-03-d-a-camera-that-teleports.md). A person
-walking with the camera 1 m from the scene moves it 1.5 depths per second."""
+at 30 fps, seed 1) and 2.43 (20 at 60 fps, seed 2: the script in a third of a second); the
+backpack clip 0.43 and the loading clip 0.57 (both walking hand-held cameras), the tennis
+clip 0.29 and 8.9 with two of COLMAP's solutions for its panning camera: in the second the
+camera teleports 3.2 m (0.3 of the scene's depth) between frames 4 and 5, back and forth
+again by frame 30, and stands still after frame 48; the floor then came from a plane of 68
+stray points, a median 2.9 m above the court's, and the body fit went from 0.088 to 0.12
+(docs/experiments/2026-12-03-d-a-camera-that-teleports.md). A person walking with the
+camera 1 m from the scene moves it 1.5 depths per second."""
 
 
 def fastest_move(w2c: np.ndarray, registered: np.ndarray, points: np.ndarray, fps: float) -> tuple[float, int, int]:
