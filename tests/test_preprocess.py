@@ -1080,6 +1080,65 @@ def test_an_object_coloured_like_the_clothes_is_found_where_the_persons_mask_tak
     assert all(ious[t] > 0.7 and conf[t] >= 0.2 and (masks[t] & gt[t]).sum() >= 0.95 * masks[t].sum() for t in (4, 5)), (ious, conf)
 
 
+def _arm_swung_across_a_disc(T=7, across=(3, 4, 5)):
+    """A racket's head (a disc, its rim in the colour of the stripes of a person's shirt,
+    grey strings) held nearly still beside the body, and the person's forearm swung across
+    its edge on frames ``across`` (MediaPipe's mask then takes the disc in, and the arm's
+    region covers it) -> images, disc masks, person probabilities, keypoints."""
+    import cv2
+
+    H, W = 120, 160
+    bg = _texture(H, W, seed=1) // 8 + 50  # a dark wall
+    yy, xx = np.mgrid[:H, :W]
+    shirt, stripes, shorts, skin, strings = (235, 120, 30), (60, 120, 200), (30, 30, 60), (120, 170, 210), (170, 170, 170)
+    torso = (np.abs(xx - 80) < 12) & (yy > 20) & (yy < 80)
+    legs = (np.abs(np.abs(xx - 80) - 7) < 6) & (yy >= 80) & (yy < 118)
+    kp = np.zeros((T, 33, 3))
+    for i, (x, y) in {11: (70, 27), 12: (90, 27), 14: (110, 27), 16: (120, 50), 23: (72, 78), 24: (88, 78)}.items():
+        kp[:, i] = (x, y, 1.0)
+    images, gt, probs = [], [], []
+    for t in range(T):
+        im = bg.copy()
+        r2 = (xx + 0.5 - (22 + t)) ** 2 + (yy + 0.5 - 62) ** 2
+        disc = r2 < 14**2
+        elbow, wrist = ((37 + t, 28), (37 + t, 94)) if t in across else ((64, 45), (66, 74))
+        kp[t, 13], kp[t, 15] = (*elbow, 1.0), (*wrist, 1.0)
+        arm = np.zeros((H, W), np.uint8)
+        cv2.line(arm, elbow, wrist, 1, 4)
+        arm = arm > 0
+        im[torso], im[torso & (yy % 6 < 3)], im[legs] = stripes, shirt, shorts
+        im[disc], im[r2 < 10**2], im[arm] = shirt, strings, skin
+        images.append(im)
+        gt.append(disc & ~arm)
+        person = torso | legs | arm | (disc if t in across else False)
+        probs.append((person * 255).astype(np.uint8))
+    return np.stack(images), np.stack(gt), np.stack(probs), kp
+
+
+def test_a_clear_fit_from_beside_the_body_holds_an_object_the_arm_swings_across(monkeypatch):
+    # The tennis clip's racket beside the hip, the forearm swung across its head (frames
+    # 101-102): MediaPipe's mask takes the head in and the arm's region covers it, so an
+    # object in the shirt's colours counted as lying on the body and was lost. The rigid fit
+    # from the frame before, where it lay beside the body, explains it clearly and is kept.
+    # (In front of the shirt itself it is still lost: the test above.)
+    from cogs.preprocess import tracking
+
+    images, gt, probs, kp = _arm_swung_across_a_disc()
+    like, cues = {}, []
+    tracker = tracking._Tracker(images, None, None, probs, kp, 0.5, 0.1, 0.5, 4, prompts={0: gt[0]})
+    assert tracker.colours_of_person
+    assert all(tracker.on_person(t, gt[t]) for t in (3, 4, 5)) and not any(tracker.on_person(t, gt[t]) for t in (0, 1, 2, 6))
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=probs, kp2d=kp, like_person=like, cues=cues)
+    assert like[0] >= tracking.LIKE_PERSON_SHARE
+    ious = [_iou(masks[t], gt[t]) for t in range(len(images))]
+    assert all(ious[t] > 0.8 and conf[t] >= 0.5 for t in range(1, 7)), (ious, conf, cues)
+    assert all(cues[t] in ("stay", "features", "flow", "carried") for t in (3, 4, 5)), cues
+    # Without the rule the object is lost while the arm lies across it.
+    monkeypatch.setattr(tracking, "FIT_ON_PERSON", 1.01)
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=probs, kp2d=kp)
+    assert not masks[3].any() and conf[3] == 0, conf
+
+
 def test_an_object_coloured_like_the_person_is_found_where_it_moves_at_a_hand_though_never_seen_carried():
     # Held by its far side (the hand's points 24 px off it, as a racket's head lies a
     # handle's length from the palm), the object is never seen carried. Out of view for two
