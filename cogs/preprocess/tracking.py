@@ -1329,7 +1329,6 @@ class _Tracker:
         c0, s0 = mask_stats(m0)
         model = self._adapted(start, m0)
         st = _State(c0, np.zeros(2), s0, m0, m0, start, float(model.prob(self.images[start])[m0].mean()), float(m0.sum()))
-        st.off_person = self.colours_of_person and not self.on_person(start, m0)
         self.bank.forget(lambda u: False)
         self.bank.add(start, m0)
         if not fill:
