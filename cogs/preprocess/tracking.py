@@ -200,7 +200,7 @@ MIN_LIMB_PIXELS = 30
 # the person's mask and the arm's region. A patch of shirt looks the same all over and does
 # not correlate with the head's outline that well. On the tennis clip the racket beside the
 # hip at 101-102, the arm across it, is fitted at 0.91 and 0.75, while the fits that left it
-# for the shirt in front of the body (1-10, the rule lifted) reach 0.57. 0.6 finds the same;
+# for the shirt in front of the body (2-22, the rule lifted) reach 0.57. 0.6 finds the same;
 # 0.5 adds the racket before the shins (85-87, fitted at 0.50-0.60, right), but within the
 # wrong fits' range. Only that clip's object has the person's colours among the development
 # clips and the synthetic video, so it is chosen there alone; nothing else changes
