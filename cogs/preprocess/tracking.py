@@ -94,6 +94,8 @@ from cogs.preprocess.segment import (
 
 log = logging.getLogger(__name__)
 
+# The cues that place the last extent by a motion hint and fit it rigidly (``_by_motion``).
+MOTION_CUES = ("stay", "flow", "features", "carried")
 # MediaPipe pose landmarks of each hand (left, right): elbow, wrist, pinky, index, thumb.
 _HAND_LANDMARKS = ((13, 15, 17, 19, 21), (14, 16, 18, 20, 22))
 # ... and of each foot: ankle, heel, toe (foot index).
@@ -557,16 +559,16 @@ def on_forearm(masks: np.ndarray, kp2d: np.ndarray, share: float = ON_FOREARM_SH
 
 def carried_on(arm: np.ndarray, masks: np.ndarray, cues: list[str], agree: float = 0.5) -> np.ndarray:
     """``arm`` [T] bool (``on_forearm``) grown along the track: a frame whose mask a motion
-    cue placed ("stay", "flow", "features", "carried") and that covers the same pixels as a
-    neighbouring frame's on the arm (IoU at least ``agree``) is on the arm too, whatever
-    share of it lies on the forearm now (the track that slid onto the other arm went on to
-    its wrist and hand). A colour find, the hand cue or a prompt is fresh evidence and
-    stops it -> [T] bool. A track runs one way from the arm, so one sweep each way finds it."""
+    cue placed (``MOTION_CUES``) and that covers the same pixels as a neighbouring frame's
+    on the arm (IoU at least ``agree``) is on the arm too, whatever share of it lies on the
+    forearm now (the track that slid onto the other arm went on to its wrist and hand). A
+    colour find, the hand cue or a prompt is fresh evidence and stops it -> [T] bool. A track
+    runs one way from the arm, so one sweep each way finds it."""
     out = arm.copy()
     T = len(out)
     for order, step in ((range(1, T), -1), (range(T - 2, -1, -1), 1)):
         for t in order:
-            if (not out[t] and out[t + step] and cues[t] in ("stay", "flow", "features", "carried") and masks[t].any()
+            if (not out[t] and out[t + step] and cues[t] in MOTION_CUES and masks[t].any()
                     and iou(masks[t], masks[t + step]) >= agree):
                 out[t] = True
     return out
@@ -1556,7 +1558,7 @@ class _Tracker:
             # lying on the person yields to what moves at a hand off it, or to nothing.
             if not (self.colours_of_person and self.on_person(t, found.visible)):
                 return found
-            if (found.cue in ("stay", "features", "flow", "carried") and st.t == t - direction and st.off_person
+            if (found.cue in MOTION_CUES and st.t == t - direction and st.off_person
                     and found.confidence >= FIT_ON_PERSON):
                 found.kept_on_person = True  # an arm swung across the object found beside the body
                 return found
