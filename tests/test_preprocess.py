@@ -2499,6 +2499,28 @@ def test_object_proxy_holds_when_a_frame_leaves_the_clear_views():
     assert proxy(doubted) == (kind, ratios)
 
 
+def test_a_flat_object_seen_face_on_where_it_is_clear_gets_a_flat_proxy():
+    # A racket's head: a flat disc (1 : 1 : 0.25), face-on to the camera wherever the
+    # tracker is sure of it, and edge-on only in views the person partly hides (confidence
+    # 0.6). Face-on, every thickness casts the same outline: the partial views tell it.
+    from cogs.geometry.camera import look_at
+    from cogs.preprocess.objectfit import ellipsoid_points, fit_object, silhouette
+
+    T, H, W = 40, 120, 160
+    K = S.intrinsics(W, H, 200.0)
+    w2c = np.tile(look_at([0.0, -2.5, 1.0], [0.0, 0.0, 1.0]), (T, 1, 1))
+    pts = ellipsoid_points(np.array([0.16, 0.16, 0.04]), 400)
+    face_on = _rot(0, 90.0)  # the disc's normal along the view
+    turn = [face_on if t < 20 else _rot(2, 4.5 * (t - 19)) @ face_on for t in range(T)]  # then turning edge-on
+    centre = np.array([0.0, 0.0, 1.0])
+    masks = np.stack([silhouette((pts @ R.T + centre) @ w2c[0, :3, :3].T + w2c[0, :3, 3], K, (H, W)) for R in turn])
+    confidence = np.where(np.arange(T) < 20, 1.0, 0.6)
+    hand, root = np.tile(centre + [0.0, 0.0, -0.2], (T, 4, 1)), np.tile([0.3, 0.3, 0.9], (T, 1))
+    fit = fit_object(masks, confidence, K, w2c, hand, root, ground=(np.array([0.0, 0.0, 1.0]), 0.0), n_hypotheses=300)
+    ratios = np.sort(fit.radii_m)[::-1] / fit.radii_m.max()
+    assert ratios[1] > 0.6 and ratios[2] < 0.35, (fit.kind, ratios)
+
+
 def test_fill_rotations_turns_a_hidden_held_object_with_its_carrier():
     from cogs.preprocess.objectfit import fill_rotations
 
