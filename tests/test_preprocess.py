@@ -2468,12 +2468,11 @@ def test_object_proxy_holds_when_a_frame_leaves_the_clear_views():
     # under the clear views' 0.8 (the tennis racket, one frame: its whole trajectory moved).
     import cv2
 
+    from cogs.geometry.camera import look_at
     from cogs.preprocess.objectfit import cuboid_points, fit_object, silhouette
 
     T, H, W = 40, 120, 160
     K = S.intrinsics(W, H, 200.0)
-    from cogs.geometry.camera import look_at
-
     w2c = np.stack([look_at([2.5 * np.sin(np.radians(9.0 * t)), -2.5 * np.cos(np.radians(9.0 * t)), 1.3 + 0.4 * np.sin(np.radians(18.0 * t))],
                             [0.2, 0, 0.9]) for t in range(T)])
     R_box = _rot_about(np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]), 40.0)
