@@ -434,14 +434,14 @@ def choose_proxy(frames: list, R_wc: np.ndarray, hyps_world: np.ndarray, sample:
     """(kind, unit half-extents [3] (largest 1), mean best IoU) of the candidate proxy whose
     silhouettes fit the sampled frames best, each frame at its best hypothesis; the mean is
     weighted by ``weight`` [len(sample)] where given."""
-    w = np.ones(len(sample)) if weight is None else np.asarray(weight, float)
+    views = [frames[t] for t in sample]
     best = ("ellipsoid", np.ones(3), -1.0)
     for kind in PROXY_KINDS:
         for i, b in enumerate(PROXY_RATIOS):
             for c in PROXY_RATIOS[i:]:
                 half = np.array([1.0, b, c])
-                pts = proxy_points(kind, half, 60)
-                score = float(np.average([1.0 - silhouette_costs([frames[t]], R_wc[t : t + 1], hyps_world, pts)[0].min() for t in sample], weights=w))
+                cost = silhouette_costs(views, R_wc[sample], hyps_world, proxy_points(kind, half, 60))[0]
+                score = float(np.average(1.0 - cost.min(axis=1), weights=weight))
                 if score > best[2] + 1e-9:
                     best = (kind, half, score)
     return best
@@ -836,7 +836,7 @@ def fit_object(
     ``proxy_frames``: the proxy is chosen on every frame with a mask, or on this many spread
     evenly over them (about 0.3 s a frame at 384 px wide), each weighted by its confidence
     and by half where it is not a clear view. Candidate shapes nearly tie on real objects
-    (mean IoU within 0.001-0.005), so a choice on a few samples flips when one frame
+    (mean IoU within 0.0002-0.005), so a choice on a few samples flips when one frame
     changes: six clear frames picked 3-4 shapes under one- and two-frame shifts on the
     tennis, basketball, backpack, bottle, guitar and loading clips, and the racket's proxy
     and its whole trajectory (up to 0.69 m) changed when one mask's confidence fell under
