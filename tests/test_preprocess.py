@@ -1659,6 +1659,27 @@ def test_colmap_gives_the_same_cameras_for_the_same_frames(tmp_path):
     assert all(np.array_equal(p0[t], p1[t]) for t in p0)
 
 
+def test_a_mapper_run_posing_too_few_frames_is_mapped_again_with_the_next_seeds(tmp_path):
+    """Asked for more frames than the clip has, the mapper runs with MAPPER_ATTEMPTS seeds
+    from the same matches and keeps the model posing the most frames, the first of equals:
+    here every seed poses all twelve, so the cameras are the first seed's, bit for bit as a
+    run that asks for nothing more."""
+    pytest.importorskip("pycolmap", reason="pycolmap is in the optional `preprocess` extra")
+    from cogs.data.synth import SynthConfig, generate_scene
+    from cogs.preprocess.sfm import MAPPER_ATTEMPTS, feature_mask, run_colmap
+
+    sc = generate_scene(SynthConfig(frames=12, width=320, height=240, points=300), show_progress=False)
+    static = np.stack([feature_mask(m, None, 4) for m in sc.gt.human_masks | sc.gt.object_masks])
+    K = sc.gt.cameras.K[0]
+    p1, x1, _, s1 = run_colmap(sc.images, static, K, tmp_path / "once")
+    pn, xn, _, sn = run_colmap(sc.images, static, K, tmp_path / "again", enough=13)
+    assert s1["mapper_seeds"] == [0] and s1["mapper_posed"] == [12]
+    assert sn["mapper_seeds"] == list(range(MAPPER_ATTEMPTS)) and len(sn["mapper_posed"]) == MAPPER_ATTEMPTS
+    assert sn["n_registered"] == max(sn["mapper_posed"]) == sn["mapper_posed"][sn["mapper_seeds"].index(sn["mapper_seed"])]
+    assert sn["mapper_seed"] == 0 and sorted(pn) == sorted(p1) and np.array_equal(xn, x1)
+    assert all(np.array_equal(pn[t], p1[t]) for t in p1)
+
+
 def _sift_like(n, rng):
     """``n`` SIFT-like uint8 descriptors: non-negative unit vectors scaled by 512, clipped."""
     d = np.abs(rng.normal(size=(n, 128)))

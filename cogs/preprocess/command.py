@@ -101,7 +101,8 @@ class Preprocess:
 
     min_registered: float = 0.6
     """auto: fall back to rotation-only when SfM poses fewer than this fraction of frames
-    (or triangulates fewer than max(100, 5 per posed frame) points)."""
+    (or triangulates fewer than max(100, 5 per posed frame) points). Below it the mapper
+    first runs again with two more seeds, keeping the model that poses the most frames."""
 
     min_parallax: float = 0.02
     """auto: keep SfM's rotations but fix the camera centre when the camera centres spread
