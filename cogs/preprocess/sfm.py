@@ -399,21 +399,21 @@ def run_colmap(
     if progress:
         progress("matching", 1, 1)
 
-    best, tried, posed = None, [], []
+    tried, posed, largest = [], [], []  # per attempt: its seed, the frames its largest model posed, that model
     for attempt in range(MAPPER_ATTEMPTS):
         recs = _map(pycolmap, db, img_dir, out_dir / str(attempt), seed + attempt, T, progress)
         rec = max(recs.values(), key=lambda r: r.num_reg_images()) if recs else None
         tried.append(seed + attempt)
         posed.append(0 if rec is None else rec.num_reg_images())
-        if rec is not None and (best is None or posed[-1] > best[0].num_reg_images()):
-            best = (rec, len(recs), seed + attempt)
-        if max(posed) >= enough or attempt + 1 == MAPPER_ATTEMPTS:
+        largest.append((rec, len(recs)))
+        if posed[-1] >= enough or attempt + 1 == MAPPER_ATTEMPTS:
             break
         log.info("structure from motion posed %d of %d frames with mapper seed %d: mapping again with seed %d",
-                 max(posed), T, seed + attempt, seed + attempt + 1)
-    if best is None:
+                 posed[-1], T, seed + attempt, seed + attempt + 1)
+    k = posed.index(max(posed))  # the first of equals
+    rec, n_models = largest[k]
+    if rec is None:
         return {}, np.zeros((0, 3)), np.zeros((0, 3), np.uint8), {"n_models": 0, "mapper_seeds": tried, "mapper_posed": posed}
-    rec, n_models, kept_seed = best
     poses: dict[int, np.ndarray] = {}
     for img in rec.images.values():
         if not img.has_pose:
@@ -429,7 +429,7 @@ def run_colmap(
         err.append(p.error)
     stats = {
         "n_models": n_models,
-        "mapper_seed": kept_seed,
+        "mapper_seed": tried[k],
         "mapper_seeds": tried,
         "mapper_posed": posed,
         "n_registered": len(poses),
