@@ -86,6 +86,8 @@ def _adam_keeps_its_step_on_the_host_under_a_default_device() -> bool:
         torch.set_default_device(None)
 
 
+@pytest.mark.skipif(not _adam_keeps_its_step_on_the_host_under_a_default_device(),
+                    reason=f"torch {torch.__version__}'s Adam makes its step count on the default device (later torch: on the host)")
 def test_every_stage_and_the_refit_make_no_tensor_on_an_implicit_device(small_synthetic, tmp_path, body_model):
     """With the default device set to "meta", any tensor the method creates without an
     explicit device lands on meta and fails when it meets the model's CPU tensors: a few
@@ -97,8 +99,6 @@ def test_every_stage_and_the_refit_make_no_tensor_on_an_implicit_device(small_sy
         "human_density.refine_every=1", "object_density.refine_every=1", "scene_density.refine_every=1",
         "weights.plane_warmup_fraction=0.25", "refit.steps=2", "visibility_every=2", "plane_assign_every=2",
     ])
-    if not _adam_keeps_its_step_on_the_host_under_a_default_device():
-        pytest.skip(f"torch {torch.__version__}'s Adam makes its step count on the default device (later torch: on the host)")
     scene = load_scene(small_synthetic)
     body_model.canonical(torch.as_tensor(scene.body.shape, dtype=torch.float32))  # the third-party rig, built before
     torch.set_default_device("meta")
