@@ -104,9 +104,13 @@ class Preprocess:
     (or triangulates fewer than max(100, 5 per posed frame) points). Below it the mapper
     first runs again with two more seeds, keeping the model that poses the most frames."""
 
-    min_parallax: float = 0.02
+    min_parallax: float = 0.04
     """auto: keep SfM's rotations but fix the camera centre when the camera centres spread
-    less than this fraction of the scene depth (points without usable depth)."""
+    less than this fraction of the scene depth (points without usable depth); those
+    rotations are then weighed against the homography chain's. Chosen on the synthetic
+    video benchmark (0.3), the guitar clip (0.056: its COLMAP cameras are worth 2 dB) and
+    the tennis clip (0.020-0.030 in every COLMAP run, each worse than rotation-only; at
+    0.0201 1.6 dB on the object crop): docs/experiments/2026-12-04-c-a-higher-parallax-gate.md."""
 
     mask_dilate_px: int = 8
     """Grow the person and object masks by this many pixels before hiding them from SfM."""
