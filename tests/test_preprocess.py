@@ -1300,6 +1300,33 @@ def test_a_resting_object_whose_mask_is_known_is_not_taken_for_static_scene():
     assert np.isnan(scene.residual(2, [(0, box[0])])[box[2]]).all()  # known: no verdict on it
 
 
+def test_a_track_left_where_the_object_was_shows_the_room_and_is_not_trusted():
+    # A box rests on the wall (frames 0-2), then is carried off to the right (3-7), while
+    # the camera pans. A track that stayed behind at frame 6 holds the room the box left:
+    # the frames that found the box elsewhere show the same pixels there. The box itself,
+    # resting (1) or carried (4), does not; nor does a mask lying on the person, whom those
+    # frames leave out.
+    from cogs.preprocess.tracking import UNCLEAR_CONFIDENCE, _Tracker
+
+    T, H, W = 8, 160, 240
+    images = _room(T, H, W, wall=2, floor=2)
+    box = np.stack([_square(H, W, 100 - 2 * t, 50, 12) if t < 3 else _square(H, W, 190, 50, 12) for t in range(T)])
+    images[box] = (220, 30, 30)
+    masks, conf = box.copy(), np.full(T, 0.8)
+    masks[6] = _square(H, W, 100 - 2 * 6, 50, 12)  # where it rested, now the wall behind it
+    person = np.zeros((T, H, W), np.uint8)
+    tracker = _Tracker(images, None, None, person, None, 0.5, 0.1, 0.5, 4, prompts={0: box[0]})
+    assert tracker.shows_the_scene(6, masks, conf)
+    assert not tracker.shows_the_scene(1, masks, conf) and not tracker.shows_the_scene(4, masks, conf)
+    # Only frames that found the object elsewhere with some confidence say what is room.
+    doubted = conf.copy()
+    doubted[3:] = UNCLEAR_CONFIDENCE
+    assert not tracker.shows_the_scene(6, masks, doubted)
+    person[6, 20:80, 60:120] = 255  # someone stands there: behind the mask is the person
+    on_person = _Tracker(images, None, None, person, None, 0.5, 0.1, 0.5, 4, prompts={0: box[0]})
+    assert not on_person.shows_the_scene(6, masks, conf)
+
+
 def test_masks_grow_and_shrink_by_round_discs_of_any_size():
     import cv2
 

@@ -56,7 +56,9 @@ the pieces of its mask that fit its outline (``drop_stray_pieces``). A frame's c
 is the cue's, capped by how much the mask looks like the prompt (``resemblance``), and
 at 0.1 where its surroundings look like it too (``unclear``: no evidence either way) or
 where it lies along a forearm (``on_forearm``: the arm holding the object), or was
-followed there by motion from such a frame (``carried_on``).
+followed there by motion from such a frame (``carried_on``), or shows off the person what
+the frames that found the object elsewhere show there (``_Tracker.shows_the_scene``: the
+floor a transparent bottle was lifted off, where the track stayed).
 
 Hands matter throughout: a handled object is always next to one, the fingers cover it, and
 a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
@@ -69,6 +71,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -168,6 +171,22 @@ MAX_AREA_GROWTH = 3.0
 # the mask lies across the hand as well: ``carried_on`` takes those where a motion cue
 # followed the arm there).
 ON_FOREARM_SHARE = 0.5
+# A find at least this share of whose pixels (from at least ``SCENE_SEEN`` of them seen)
+# show, within ``SCENE_TOL`` grey levels, what the nearest ``SCENE_REFS`` frames show there
+# while the object is confidently elsewhere (``_Tracker.shows_the_scene``) is a patch of
+# the room that looks like the object, not the object: its confidence is capped at
+# ``UNCLEAR_CONFIDENCE``. The tracker's other static-scene tests compare a frame with those
+# the pass came through, whose masks hide the very patch a track has settled on (the floor
+# a transparent bottle was lifted off), so they cannot see it. At 960 px the bottle clip's
+# colour finds on the floor at 9, 29 and 30, trusted at 0.68-0.79, have 0.62-0.88 of their
+# pixels within 8 grey levels (median residual 2-5); every find on the object, on the seven
+# development clips at 384 px and the bottle at 960, has at most 0.44 (the tennis racket
+# over the banner: median residual 46), the bottle standing on its floor 0.23-0.37 (median
+# 13-21) (docs/experiments/2026-12-04-d-a-track-on-the-floor.md).
+SCENE_SHARE = 0.5
+SCENE_SEEN = 0.5
+SCENE_TOL = 8.0
+SCENE_REFS = 4
 # An object one of whose prompts' colour models calls at least this share of the person's
 # pixels (off the object, on the prompt's frame) object has the colours of the person's
 # clothes (a white racket held in front of a white shirt), and colours cannot tell the two
@@ -1162,6 +1181,37 @@ class _Tracker:
         off = None if self.kp2d is None else hand_regions(self.kp2d[t], mask.shape)
         return self._lookalike_share(self.base_model, t, mask, off) >= UNCLEAR_SHARE
 
+    def shows_the_scene(self, t: int, masks: np.ndarray, conf: np.ndarray) -> bool:
+        """Whether frame t's mask (``masks`` [T, H, W] bool, ``conf`` [T]) shows the room
+        rather than the object: at least ``SCENE_SHARE`` of its pixels seen in the nearest
+        ``SCENE_REFS`` frames whose own found masks (above ``UNCLEAR_CONFIDENCE``) lie
+        farther than the object's size from it show there what this frame shows: the median
+        over those frames of ``StaticScene.residual`` (the person left out of them and of
+        this frame) at most ``SCENE_TOL`` grey levels. No such frame, or too few of the
+        mask's pixels seen off the person (``SCENE_SEEN``): False."""
+        mask = masks[t]
+        if self.scene is None or not mask.any():
+            return False
+        ys, xs = np.nonzero(mask)
+        near = grown(mask, int(max(np.ptp(xs), np.ptp(ys))) + 1)
+        refs = [u for u in sorted(range(len(masks)), key=lambda u: (abs(u - t), u))
+                if u != t and conf[u] > UNCLEAR_CONFIDENCE and masks[u].any() and not (masks[u] & near).any()][:SCENE_REFS]
+        if not refs:
+            return False
+        # Each frame alone, then their median: one whose mask missed the object (so that the
+        # object, unmasked there, passes for room) cannot make the object room by itself.
+        each = np.stack([self.scene.residual(t, [(u, masks[u])])[mask] for u in refs])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a pixel no frame sees stays NaN
+            r = np.nanmedian(each, axis=0)
+        # Only pixels off this frame's person can be the room: behind a mask on the body lies
+        # the person, whom the other frames' static scene leaves out (and where MediaPipe's mask
+        # bleeds past the shirt, a dark shirt seen through a transparent bottle matches it).
+        seen = np.isfinite(r) & person_free(self.human_probs[t], self.scene.margin)[mask]
+        if seen.mean() < SCENE_SEEN:
+            return False
+        return float((r[seen] <= SCENE_TOL).mean()) >= SCENE_SHARE
+
     def _lookalike_share(self, model: ColourModel, t: int, mask: np.ndarray, off: np.ndarray | None) -> float:
         """The share of the band around frame t's ``mask`` (half the object wide, minus
         ``off`` [H, W] bool) that ``model`` calls object (probability > 0.5); 0 for no band."""
@@ -1862,6 +1912,13 @@ def propagate_masks(
         for t in np.flatnonzero(carried_on(on_forearm(masks, kp2d), masks, found)):
             if found[t] != "prompt":
                 conf[t] = min(conf[t], UNCLEAR_CONFIDENCE)
+    # A find that shows what the room shows there while the object is elsewhere (each
+    # frame judged against the others' confidences as the passes left them).
+    scenery = [t for t in range(T) if found[t] != "prompt" and conf[t] > UNCLEAR_CONFIDENCE and tracker.shows_the_scene(t, masks, conf)]
+    if scenery:
+        log.info("the object masks of frame(s) %s show the room as other frames see it there, with the object elsewhere: "
+                 "they do not supervise it", scenery)
+        conf[scenery] = UNCLEAR_CONFIDENCE
     # What a frame's outline took in of the room around the object (a GrabCut spreading
     # into the bed beside a guitar), where the rest of the mask moves.
     if tracker.scene is not None:
