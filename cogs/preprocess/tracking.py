@@ -70,6 +70,7 @@ place the colour search would take with the feet counted 5x less.
 from __future__ import annotations
 
 import copy
+import itertools
 import logging
 import warnings
 from dataclasses import dataclass, field
@@ -1193,10 +1194,17 @@ class _Tracker:
         mask = masks[t]
         if self.scene is None or not mask.any():
             return False
+        # Only pixels off this frame's person can be the room: behind a mask on the body lies
+        # the person, whom the other frames' static scene leaves out (and where MediaPipe's mask
+        # bleeds past the shirt, a dark shirt seen through a transparent bottle matches it).
+        off_person = person_free(self.human_probs[t], self.scene.margin)[mask]
+        if off_person.mean() < SCENE_SEEN:
+            return False  # a held object mostly is: no frame needs comparing
         ys, xs = np.nonzero(mask)
         near = grown(mask, int(max(np.ptp(xs), np.ptp(ys))) + 1)
-        refs = [u for u in sorted(range(len(masks)), key=lambda u: (abs(u - t), u))
-                if u != t and conf[u] > UNCLEAR_CONFIDENCE and masks[u].any() and not (masks[u] & near).any()][:SCENE_REFS]
+        nearest_first = sorted(range(len(masks)), key=lambda u: (abs(u - t), u))
+        refs = list(itertools.islice((u for u in nearest_first if u != t and conf[u] > UNCLEAR_CONFIDENCE
+                                      and masks[u].any() and not (masks[u] & near).any()), SCENE_REFS))
         if not refs:
             return False
         # Each frame alone, then their median: one whose mask missed the object (so that the
@@ -1205,10 +1213,7 @@ class _Tracker:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # a pixel no frame sees stays NaN
             r = np.nanmedian(each, axis=0)
-        # Only pixels off this frame's person can be the room: behind a mask on the body lies
-        # the person, whom the other frames' static scene leaves out (and where MediaPipe's mask
-        # bleeds past the shirt, a dark shirt seen through a transparent bottle matches it).
-        seen = np.isfinite(r) & person_free(self.human_probs[t], self.scene.margin)[mask]
+        seen = np.isfinite(r) & off_person
         if seen.mean() < SCENE_SEEN:
             return False
         return float((r[seen] <= SCENE_TOL).mean()) >= SCENE_SHARE
