@@ -739,6 +739,28 @@ def test_an_object_lost_while_carried_is_not_refound_where_no_hand_has_been(monk
     assert (masks[3:9] & decoy).any()
 
 
+def test_a_faint_look_alike_at_the_hand_is_not_taken_for_an_object_lost_for_longer_than_a_carry():
+    # Carried, then out of view to the end of the clip. Five frames after the loss a square
+    # of its colour shows up just below the hand, striped with the background over three
+    # quarters of it (0.41 of the prompt's evidence): near a hand the colour search would
+    # take 0.7x the evidence it asks elsewhere, but the object has been gone longer than a
+    # carry is kept, so it asks the full evidence and finds nothing.
+    from cogs.preprocess import tracking
+
+    T, (x, y) = 12, (70, 92)
+    images, gt, _, _, kp = _held_object_clip(T=T, hidden=tuple(range(3, T)), speed=4, decoy=(x, y),
+                                             decoy_colour=(235, 120, 30), decoy_from=8)
+    decoy = _square(*images.shape[1:3], x, y, 14)
+    xx = np.mgrid[: images.shape[1], : images.shape[2]][1]
+    stripes = decoy & (xx % 8 >= 2)
+    images[8:, stripes] = images[0, stripes]
+    hands = tracking.hand_points(kp)
+    assert np.hypot(*(hands[8, 1, :2] - (x, y))) < 25  # next to the hand
+    masks, conf = O.propagate_masks(images, gt[0], 0, kp2d=kp)
+    assert _iou(masks[2], gt[2]) > 0.85 and conf[2] > 0
+    assert not masks[3:].any() and not conf[3:].any()
+
+
 def test_a_hand_point_off_a_clearly_seen_carried_object_does_not_end_the_carry(monkeypatch):
     # As above, but on the last frame before the loss the hand's landmarks sit 10 px off
     # the object (a body turning away, whose hands the pose model places loosely): the

@@ -1661,13 +1661,21 @@ class _Tracker:
 
         # 2. Colour search. The evidence needed falls with prior plausibility: min_score
         #    at a moderately likely place, 0.7x that where predicted or at a hand, 1.3x far
-        #    from both. An object lost while carried is where a hand has been since.
+        #    from both. An object lost while carried is where a hand has been since. Lost
+        #    for longer than a carry is kept (``max_hand_frames``), the discount lapses: the
+        #    prediction's reach has grown over much of the frame and the object may have
+        #    left the hand (a bookshelf's red and brown books, re-found at 0.42 of the
+        #    prompt's evidence next to a hand after 12 frames lost behind the body, on the
+        #    synthetic video at 60 frames, variant 1).
         if st.held and (st.into_gap or st.t != t - direction):
             path = self._hand_path(st.t, t, HAND_PATH_REACH * float(np.sqrt(max(st.area, 1.0))))
             if path is not None:
                 prob_search = np.where(path, prob_search, 0.0)
         centre, score, plausible = locate(prob_search, st, hands_t, floor)
-        if score >= self.min_score * self.ref_score * (1.3 - 0.6 * plausible):
+        need = 1.3 - 0.6 * plausible
+        if st.lost > self.max_hand_frames:
+            need = max(need, 1.0)
+        if score >= self.min_score * self.ref_score * need:
             cf = min(1.0, score / self.ref_score)
             seg = grabcut_at(rgb, prob_search, centre, st.size, hp, static=static)
             seg = fill_holes(largest_component_near(seg, tuple(centre))) & ~hands if seg.any() else seg
