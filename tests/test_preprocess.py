@@ -1042,6 +1042,32 @@ def test_an_object_coloured_like_the_persons_clothes_is_looked_for_off_the_perso
     assert "--object-box 0 10 20 30 40" in text and "frame 0" in text and "--sam2-checkpoint" in text
 
 
+def test_whether_the_object_looks_like_the_person_is_asked_of_the_prompts_either_side_of_a_pass():
+    # A prompt shows the object as it looks on its frame (a face-on racket's strings show the
+    # court, a transparent bottle the shirt behind it): the rule that keeps an object in the
+    # person's colours off the person holds for the frames between two prompts if either
+    # shows it so, and beyond the last prompt only if that one does. Here the second prompt
+    # (frame 3) sees no look-alike clothes (its frame's person mask leaves the shirt out):
+    # past it the disc is followed across the person, where with the first prompt alone,
+    # and with both under a rule asked of every prompt, it is marked lost.
+    from cogs.preprocess import tracking
+
+    images, gt, probs = _disc_past_a_person(shirt=(235, 120, 30))
+    shirt = (probs[3] > 127) & ~gt[3] & (np.abs(images[3].astype(int) - (235, 120, 30)).sum(-1) < 30)
+    probs[3][shirt] = 0
+    two = tracking._Tracker(images, None, None, probs, None, 0.5, 0.1, 0.5, 4, prompts={0: gt[0], 3: gt[3]})
+    assert two.like_person[3] < tracking.LIKE_PERSON_SHARE <= two.like_person[0], two.like_person
+    assert two.coloured_like_person(0, +1) and two.coloured_like_person(3, -1) and two.coloured_like_person(1, +1)
+    assert not two.coloured_like_person(3, +1) and not two.coloured_like_person(5, -1)
+    one = tracking._Tracker(images, None, None, probs, None, 0.5, 0.1, 0.5, 4, prompts={3: gt[3]})
+    assert not one.coloured_like_person(3, -1)  # a lone prompt decides for the whole clip
+    masks, conf = O.propagate_masks(images, [gt[0], gt[3]], [0, 3], human_probs=probs)
+    ious = [_iou(masks[t], gt[t]) for t in range(len(images))]
+    assert all(ious[t] > 0.8 and conf[t] > 0 for t in range(len(images))), (ious, conf)
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=probs)
+    assert all(not masks[t].any() and conf[t] == 0 for t in (4, 5)), conf
+
+
 def test_an_object_coloured_like_the_clothes_is_found_where_the_persons_mask_takes_it_in_beyond_the_body():
     # A racket held out beside the legs: the person's segmentation takes it in, though the
     # body's joints do not reach there. An object coloured like the clothes is looked for
@@ -1087,8 +1113,9 @@ def test_an_object_coloured_like_the_clothes_is_found_where_the_persons_mask_tak
     kp[:, 25, 1] = kp[:, 26, 1] = 80
     tracker = tracking._Tracker(images, None, None, probs, kp, 0.5, 0.1, 0.5, 4, prompts={0: gt[0]})
     assert tracker.colours_of_person and "thigh" in tracker.limbs_apart and "upper arm" not in tracker.limbs_apart
-    # Both are the object's, whichever prompt a pass starts from: a second prompt on a frame
-    # whose person mask leaves the shirt out sees no look-alike clothes, and changes neither.
+    # The limbs told apart are the object's, whichever prompt shows them: a second prompt on
+    # a frame whose person mask leaves the shirt out sees no look-alike clothes, and changes
+    # neither the clip's verdict nor the limbs.
     shirt = (probs[6] > 127) & ~gt[6] & (np.abs(images[6].astype(int) - (235, 120, 30)).sum(-1) < 30)
     missed = probs.copy()
     missed[6][shirt] = 0

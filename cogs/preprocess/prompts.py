@@ -221,9 +221,9 @@ def person_lookalike_warning(prompt: BoxPrompt, share: float) -> str | None:
     if share < LIKE_PERSON_SHARE:
         return None
     return (f"{prompt.option} {prompt.text}: {share:.0%} of the person on frame {prompt.frame} has the object's colours "
-            "(a white racket and a white shirt); the classical tracker cannot tell them apart, so it looks for the "
-            "object only off the person's body and limbs dressed in other colours, and marks it lost where it is in "
-            "front of the rest: add an "
+            "(a white racket and a white shirt); the classical tracker cannot tell them apart, so up to the boxes either "
+            "side of this one it looks for the object only off the person's body and limbs dressed in other colours, "
+            "and marks it lost where it is in front of the rest: add an "
             f"{POSITIVE} where it stands clear of the person, or give --sam2-checkpoint")
 
 

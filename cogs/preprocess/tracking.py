@@ -194,8 +194,15 @@ SCENE_REFS = 4
 # clothes (a white racket held in front of a white shirt), and colours cannot tell the two
 # apart: the object is then only looked for off the person's body (``body_regions``:
 # MediaPipe's mask takes in a racket held out beside the legs, the landmarks' limbs do not
-# reach there) and near the hands and its predicted place, from every prompt (a face-on
-# racket's prompt shows fewer white pixels: 0.15). A find lying mostly on the body
+# reach there) and near the hands and its predicted place. A pass asks the prompts either
+# side of its frames (``_Tracker.coloured_like_person``): between two prompts the rule holds
+# if either shows the object so, beyond the first or last only if that one does. A prompt
+# shows the object as it looks there: the tennis racket face-on on frame 70 shows the court
+# through its strings (0.16, against 0.26 edge-on on frame 0), and the pass beyond it then
+# follows the racket's head in front of the shins at 85-90; a box on a transparent bottle
+# in front of a black shirt (0.27, against 0.14 and 0.16 on the bottle's other prompts)
+# no longer turns the rule on for the frames before the prompt before it
+# (docs/experiments/2026-12-05-b-the-person-colour-rule-per-pass.md). A find lying mostly on the body
 # (``ON_PERSON_SHARE`` of it) yields to what moves at a hand off the person, or the frame
 # counts as lost, and a loss does not end a carry (in front of the person the object is as
 # good as hidden; it has not left the hand). The share is 0.25 on a tennis clip whose track
@@ -1077,9 +1084,9 @@ class _Tracker:
             # a box, a ball, a bottle are convex; not a mug by its handle
             self.appearance[k] = (base, float(base.prob(images[k])[m].mean()), float(m.sum()), solidity(m) >= 0.9, s0)
         self.like_person = {k: self.person_lookalike(k, m) for k, m in prompts.items()}
-        # Both are the object's against the person's clothes, whichever prompt a pass
-        # starts from: a face-on racket's prompt shows fewer of its white pixels, and a
-        # prompt's frame where the object or its hand lies over a limb sees more of it.
+        # Whether some prompt shows the object in the person's colours; each pass then asks
+        # the prompts either side of the frames it covers (``coloured_like_person``). The
+        # limbs told apart are the object's against the clothes, from every prompt.
         self.colours_of_person = max(self.like_person.values(), default=0.0) >= LIKE_PERSON_SHARE
         self.limbs_apart = (tuple(sorted({kind for k, m in prompts.items() for kind in self.limbs_told_apart(k, m)}))
                             if self.colours_of_person else ())
@@ -1116,6 +1123,18 @@ class _Tracker:
 
         person = (self.human_probs[k] > 127) & ~(cv2.dilate(mask.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0)
         return person, self.appearance[k][0].prob(self.images[k]) > 0.5
+
+    def coloured_like_person(self, t: int, direction: int) -> bool:
+        """Whether a pass from frame t towards ``direction`` looks for an object coloured
+        like the person's clothes (``LIKE_PERSON_SHARE``): as the prompts either side of the
+        frames it covers show the object, the nearest one on each side (the one side beyond
+        the first or last prompt). A prompt shows the object as it looks there: a face-on
+        racket's strings show the court rather than white, a transparent bottle in front
+        of a black shirt shows the shirt; a prompt elsewhere in the clip says nothing about
+        these frames."""
+        lo, hi = sorted((t, t + direction))
+        either = [max((k for k in self.prompts if k <= lo), default=None), min((k for k in self.prompts if k >= hi), default=None)]
+        return max((self.like_person[k] for k in either if k is not None), default=0.0) >= LIKE_PERSON_SHARE
 
     def limbs_told_apart(self, k: int, mask: np.ndarray) -> tuple[str, ...]:
         """The kinds of limb (``limb_regions``) whose pixels on prompt k's frame (the
@@ -1380,6 +1399,7 @@ class _Tracker:
         gap, or back from a clear find) never start on one."""
         T = len(self.images)
         from_prompt = not fill and start in self.prompts
+        self.colours_of_person = self.coloured_like_person(start, direction)
         if masks is not self.masks:
             self._scene_maps = {}  # judged against another pass's frames
         self.masks = masks
