@@ -201,7 +201,8 @@ SCENE_REFS = 4
 # through its strings (0.16, against 0.26 edge-on on frame 0), and the pass beyond it then
 # follows the racket's head in front of the shins at 85-90; a box on a transparent bottle
 # in front of a black shirt (0.27, against 0.14 and 0.16 on the bottle's other prompts)
-# no longer turns the rule on for the frames before the prompt before it
+# turns it on up to the neighbouring prompts, no further. The price: a prompt whose frame's
+# person mask misses the clothes under-measures the share, and frees the frames beyond it
 # (docs/experiments/2026-12-05-b-the-person-colour-rule-per-pass.md). A find lying mostly on the body
 # (``ON_PERSON_SHARE`` of it) yields to what moves at a hand off the person, or the frame
 # counts as lost, and a loss does not end a carry (in front of the person the object is as
