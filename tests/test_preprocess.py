@@ -2529,6 +2529,38 @@ def test_object_fit_takes_a_resting_objects_depth_from_the_moving_camera():
     assert depth_err.max() < 0.02, depth_err
 
 
+def test_a_held_objects_depth_from_its_size_stays_within_reach_of_the_hand_holding_it():
+    # A box held still in the right hand 2.5 m from a still camera. From frame 6 on its
+    # silhouette is half as wide (as a flat object's is when the rotation chosen shows it
+    # more face-on than it is): its size alone would put it 5 m away, 2.5 m behind the hand.
+    from cogs.geometry.camera import look_at
+    from cogs.preprocess.objectfit import HAND_LENGTH_M, cuboid_points, fit_object, silhouette
+
+    T, H, W = 10, 240, 320
+    K = S.intrinsics(W, H, 400.0)
+    w2c = np.tile(look_at([0.0, -2.5, 0.9], [0.0, 0.0, 0.9]), (T, 1, 1))
+    centre = np.array([0.0, 0.0, 0.9])
+    half = np.array([0.15, 0.10, 0.06])
+    R_box = _rot_about(np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]), 40.0)
+    masks = np.stack([silhouette((cuboid_points(half * (1.0 if t < 6 else 0.5)) @ R_box.T + centre) @ w2c[t, :3, :3].T + w2c[t, :3, 3],
+                                 K, (H, W)) for t in range(T)])
+    hand = np.tile([[-0.6, 0.0, 1.0], [0.12, 0.0, 0.9]] * 2, (T, 1, 1))  # left hand away, right hand at the box
+    root = np.tile([0.0, 0.3, 0.9], (T, 1))
+    fit = fit_object(masks, np.ones(T), K, w2c, hand, root, ground=(np.array([0.0, 0.0, 1.0]), 0.0), n_hypotheses=300)
+    depth = np.einsum("ij,tj->ti", w2c[0, :3, :3], fit.track.translations)[:, 2] + w2c[0, 2, 3]
+    reach = 2.0 * fit.radii_m.max() + HAND_LENGTH_M
+    # The first frames fix the size; later ones that outrun the hand are brought back to it.
+    assert np.abs(depth[:6] - 2.5).max() < 0.15, depth
+    assert set(fit.depth_source[6:]) == {"reach"}, fit.depth_source
+    assert (np.abs(depth - 2.5) <= reach + 0.05).all(), (depth, reach)
+    # Away from the hands the size alone decides: nothing holds the object.
+    far = np.tile([-0.6, 0.0, 1.6], (T, 4, 1))
+    fit = fit_object(masks, np.ones(T), K, w2c, far, root, ground=(np.array([0.0, 0.0, 1.0]), 0.0), n_hypotheses=300)
+    assert "reach" not in fit.depth_source
+    depth = np.einsum("ij,tj->ti", w2c[0, :3, :3], fit.track.translations)[:, 2] + w2c[0, 2, 3]
+    assert depth[7:].min() > 2.5 + reach, depth
+
+
 def test_object_fit_keeps_one_rotation_while_the_object_rests():
     # A box whose proportions lie between the proxy's candidates, resting with no hand at it:
     # fitted frame by frame, each view's best proxy pose turned its own way (the wrong shape

@@ -27,7 +27,8 @@ ellipsoid only wins for objects that really are round.
    the hand: where the mask is near a fitted hand joint the object is about as far from
    the camera as that hand. Every other frame's depth is then the size's (a clear view) or
    the hand's (a view partly hidden by the person), interpolated over frames without a
-   mask. The body's metric scale carries over to all of them.
+   mask; a held object's is kept within reach of the holding hand (``HAND_LENGTH_M``). The
+   body's metric scale carries over to all of them.
 4. **Refinement**: rotation and translation together by a shrinking-step coordinate
    search on the full-resolution silhouette score, from the chosen hypothesis.
 5. **Carried in a hand** (``carry_in_hand``): a stretch of frames held by a fitted hand
@@ -57,6 +58,11 @@ log = logging.getLogger(__name__)
 
 HAND_BONES = ["wrist.L", "wrist.R", "finger3-1.L", "finger3-1.R"]
 PROXY_KINDS = ("cuboid", "ellipsoid")
+HAND_LENGTH_M = 0.2
+"""How much farther than its own length from the holding hand's fitted joints a held
+object's centre may lie, in depth (``_poses``): about an adult hand's length, wrist to
+fingertips (the joints are the wrist and the middle finger's base, and the grip can be at
+the fingertips). A physical bound, not tuned; docs/experiments/2026-12-05-c-a-held-objects-depth-within-reach.md."""
 PROXY_RATIOS = (1.0, 0.7, 0.45, 0.25)
 """Candidate ratios of the proxy's middle and smallest half-extent to its largest: from a
 cube to a slab a quarter as thick. Set on the synthetic video benchmark (default clip and a
@@ -68,7 +74,7 @@ class ObjectFit:
     track: ObjectTrack
     radii_m: np.ndarray  # [3] the proxy's half-extents (semi-axes) in canonical coordinates, metres
     iou: np.ndarray  # [T] silhouette IoU of the smoothed pose (NaN where the mask is empty)
-    depth_source: list[str]  # per frame: "rest", "size", "hand", "interpolated"
+    depth_source: list[str]  # per frame: "rest", "size", "reach" (the size's, brought within reach of the hand), "hand", "interpolated"
     kind: str = "ellipsoid"  # the proxy: "cuboid" or "ellipsoid"
     carried: np.ndarray | None = None  # [T] bool: turned with a fitted forearm (``carry_in_hand``)
 
@@ -554,6 +560,23 @@ def _hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, eq_r_px: np.n
     return out, side
 
 
+def _holding_hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, hand_depth: np.ndarray,
+                        held: np.ndarray) -> np.ndarray:
+    """[T] camera depth of the fitted hand holding the object in its ``held`` frames (NaN
+    elsewhere): ``_hand_depth``'s where it found a joint at the mask, else that of the joint
+    nearest the mask's centroid in the image (a long object's centroid lies far from the
+    hand holding it)."""
+    out = np.where(held, hand_depth, np.nan)
+    for t in np.flatnonzero(held & ~np.isfinite(hand_depth)):
+        hp = hand_cam[t]
+        front = hp[:, 2] > 0
+        if not front.any():
+            continue
+        uv = hp[front, :2] / hp[front, 2:3] * K[0, 0] + K[:2, 2]
+        out[t] = hp[front][int(np.argmin(np.linalg.norm(uv - frames[t].centroid, axis=1))), 2]
+    return out
+
+
 def _doubted_away_from_hands(masks: np.ndarray, has: np.ndarray, confidence: np.ndarray, trusted: float,
                              hand_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
     """[T] bool: the frames whose mask is doubted (confidence under ``trusted``) and has no
@@ -659,13 +682,19 @@ def rest_positions(frames: list, world_to_camera: np.ndarray, K: np.ndarray, can
     return out
 
 
-def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam):
+def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam, held_z):
     """Camera-frame poses of the chosen hypotheses with the proxy's metric size and each
     frame's depth: (R [T, 3, 3], t [T, 3], depth [T], depth source [T], half-extents [3]).
 
     Depth, best first: a resting object's triangulated position (``rest_cam`` [T, 3], NaN
     elsewhere), the hand's where the view is partly hidden, the proxy's metric size. The
-    size is set by the resting frames where there are some, else by the hand's depth."""
+    size is set by the resting frames where there are some, else by the hand's depth.
+
+    A held object's depth from its size is kept within its length plus ``HAND_LENGTH_M`` of
+    the holding hand's (``held_z`` [T], NaN where no hand holds it): the size's depth
+    follows the chosen rotation, and a flat object's silhouette seen more face-on than it is
+    puts it far behind the hand (the tennis racket 7-10 m behind the player at 6 m, and
+    one changed stretch of masks moved it by up to 1.9 m elsewhere in the clip)."""
     T = len(path)
     R_obj_cam = np.einsum("tij,tjk->tik", R_wc, hyps[path])
     z_unit = trans_unit[np.arange(T), path, 2]
@@ -691,6 +720,9 @@ def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_
             depth[t], source[t] = rest_cam[t, 2], "rest"
         elif clear[t] or not np.isfinite(hand_depth[t]):
             depth[t], source[t] = size * z_unit[t], "size"
+            reach = 2.0 * size * float(half_unit.max()) + HAND_LENGTH_M
+            if abs(depth[t] - held_z[t]) > reach:  # (False where no hand holds it: NaN)
+                depth[t], source[t] = float(np.clip(depth[t], held_z[t] - reach, held_z[t] + reach)), "reach"
         else:
             depth[t], source[t] = hand_depth[t], "hand"
     ok = np.isfinite(depth)
@@ -746,7 +778,7 @@ def _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, 
         s_best, _ = scorer(R_best, t_best)
         R_best, t_best = _pose_search(lambda R, tt: scorer(R, tt)[0], R_best, t_best, s_best, refine_steps,
                                       step_t=0.03 * depth[t] * np.array([0.3, 0.3, 1.0]), step_r=0.12, min_step_r=0.01)
-        if source[t] in ("hand", "rest"):  # depth measured otherwise (a partly hidden view's outline says little about it)
+        if source[t] in ("hand", "rest", "reach"):  # depth measured otherwise (a partly hidden view's outline says little about it; the size's outruns the hand)
             t_best = t_best / t_best[2] * depth[t]
         R_obj_cam[t], t_obj_cam[t] = R_best, t_best
     return R_obj_cam, t_obj_cam
@@ -911,12 +943,16 @@ def fit_object(
                                 extend=has & (confidence >= trusted))
     rest_cam = np.einsum("tij,tj->ti", R_wc, rest_world) + t_wc
     windows = rest_windows(rest_world)
+    held = np.zeros(T, bool)  # a partial mask's centroid can stray from the hand for a frame
+    for k, t in enumerate(idx):
+        held[t] = np.isfinite(hand_depth[idx[max(0, k - held_reach) : k + held_reach + 1]]).any()
+    held_z = _holding_hand_depth(hand_cam, frames, K, hand_depth, held)
     # A resting object does not turn: consecutive frames of one window keep one hypothesis.
     same = np.array([windows[a] >= 0 and windows[a] == windows[b] for a, b in zip(idx[:-1], idx[1:])])
     tied = np.where(dist > 0, np.inf, 0.0)
     path = np.zeros(T, np.int64)
     path[idx] = viterbi(cost[idx] * weight[idx, None], lambda k: tied if same[k] else smooth_per_rad * dist)
-    R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam)
+    R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam, held_z)
     R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
     R_obj_cam, t_obj_cam = _refine_rest(masks, K, kind, half, R_obj_cam, t_obj_cam, world_to_camera, windows, eq_r_px, refine_steps)
     n_measured = 0
@@ -937,17 +973,13 @@ def fit_object(
             return feature_per_rad * np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
 
         path[idx] = viterbi(cost[idx] * weight[idx, None], pairwise)
-        R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam)
+        R_obj_cam, t_obj_cam, depth, source, half = _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_unit, rest_cam, held_z)
         R_obj_cam, t_obj_cam = _refine(masks, K, kind, half, R_obj_cam, t_obj_cam, depth, source, eq_r_px, refine_steps)
         R_obj_cam, t_obj_cam = _refine_rest(masks, K, kind, half, R_obj_cam, t_obj_cam, world_to_camera, windows, eq_r_px, refine_steps)
     pts = proxy_points(kind, half)
 
     # Camera -> world; frames without a mask from the frames either side.
     R_world = np.einsum("tji,tjk->tik", R_wc, R_obj_cam)
-    near = np.isfinite(hand_depth)
-    held = np.zeros(T, bool)  # a partial mask's centroid can stray from the hand for a frame
-    for k, t in enumerate(idx):
-        held[t] = near[idx[max(0, k - held_reach) : k + held_reach + 1]].any()
     # 5. Carried in a hand, from a frame whose rotation is known.
     t_world = np.einsum("tji,tj->ti", R_wc, t_obj_cam - t_wc)
     palms = 0.5 * (hand_points_world[:, :2] + hand_points_world[:, 2:4])
