@@ -551,29 +551,30 @@ def _hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, eq_r_px: np.n
     for t, fm in enumerate(frames):
         if fm is None:
             continue
-        hp = hand_cam[t]
-        uv = hp[:, :2] / hp[:, 2:3] * K[0, 0] + K[:2, 2]
-        d = np.linalg.norm(uv - fm.centroid, axis=1)
-        k = int(np.argmin(d))
-        if d[k] < 2.0 * eq_r_px[t] + 0.02 * max(shape) and hp[k, 2] > 0:
-            out[t], side[t] = hp[k, 2], k % 2
+        k, d = _nearest_hand_joint(hand_cam[t], fm, K)
+        if d < 2.0 * eq_r_px[t] + 0.02 * max(shape) and hand_cam[t, k, 2] > 0:
+            out[t], side[t] = hand_cam[t, k, 2], k % 2
     return out, side
 
 
-def _holding_hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, hand_depth: np.ndarray,
-                        held: np.ndarray) -> np.ndarray:
+def _nearest_hand_joint(hand_cam_t: np.ndarray, fm, K: np.ndarray) -> tuple[int, float]:
+    """The fitted hand joint (index into ``hand_cam_t`` [P, 3], camera coordinates) whose
+    image lies nearest the mask's centroid, and that distance in pixels."""
+    uv = hand_cam_t[:, :2] / hand_cam_t[:, 2:3] * K[0, 0] + K[:2, 2]
+    d = np.linalg.norm(uv - fm.centroid, axis=1)
+    k = int(np.argmin(d))
+    return k, float(d[k])
+
+
+def _holding_hand_depth(hand_cam: np.ndarray, frames: list, K: np.ndarray, held: np.ndarray) -> np.ndarray:
     """[T] camera depth of the fitted hand holding the object in its ``held`` frames (NaN
-    elsewhere): ``_hand_depth``'s where it found a joint at the mask, else that of the joint
-    nearest the mask's centroid in the image (a long object's centroid lies far from the
-    hand holding it)."""
-    out = np.where(held, hand_depth, np.nan)
-    for t in np.flatnonzero(held & ~np.isfinite(hand_depth)):
-        hp = hand_cam[t]
-        front = hp[:, 2] > 0
-        if not front.any():
-            continue
-        uv = hp[front, :2] / hp[front, 2:3] * K[0, 0] + K[:2, 2]
-        out[t] = hp[front][int(np.argmin(np.linalg.norm(uv - frames[t].centroid, axis=1))), 2]
+    elsewhere): the joint nearest the mask's centroid in the image, the one ``_hand_depth``
+    takes where it is at the mask (a long object's centroid lies far from the hand holding
+    it, so here it need not be)."""
+    out = np.full(len(frames), np.nan)
+    for t in np.flatnonzero(held):
+        z = hand_cam[t, _nearest_hand_joint(hand_cam[t], frames[t], K)[0], 2]
+        out[t] = z if z > 0 else np.nan
     return out
 
 
@@ -713,6 +714,7 @@ def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_
         size = float(np.median(root_cam[ok, 2] / z_unit[ok]))
     depth = np.full(T, np.nan)
     source = ["interpolated"] * T
+    reach = 2.0 * size * float(half_unit.max()) + HAND_LENGTH_M  # the object's length and a hand
     for t in range(T):
         if not has[t]:
             continue
@@ -720,7 +722,6 @@ def _poses(path, hyps, has, clear, R_wc, trans_unit, hand_depth, root_cam, half_
             depth[t], source[t] = rest_cam[t, 2], "rest"
         elif clear[t] or not np.isfinite(hand_depth[t]):
             depth[t], source[t] = size * z_unit[t], "size"
-            reach = 2.0 * size * float(half_unit.max()) + HAND_LENGTH_M
             if abs(depth[t] - held_z[t]) > reach:  # (False where no hand holds it: NaN)
                 depth[t], source[t] = float(np.clip(depth[t], held_z[t] - reach, held_z[t] + reach)), "reach"
         else:
@@ -946,7 +947,7 @@ def fit_object(
     held = np.zeros(T, bool)  # a partial mask's centroid can stray from the hand for a frame
     for k, t in enumerate(idx):
         held[t] = np.isfinite(hand_depth[idx[max(0, k - held_reach) : k + held_reach + 1]]).any()
-    held_z = _holding_hand_depth(hand_cam, frames, K, hand_depth, held)
+    held_z = _holding_hand_depth(hand_cam, frames, K, held)
     # A resting object does not turn: consecutive frames of one window keep one hypothesis.
     same = np.array([windows[a] >= 0 and windows[a] == windows[b] for a, b in zip(idx[:-1], idx[1:])])
     tied = np.where(dist > 0, np.inf, 0.0)
