@@ -909,6 +909,91 @@ def test_a_mask_that_cannot_be_told_from_its_surroundings_is_not_trusted():
     assert tracker.unclear(9, gt[9]) and not tracker.unclear(9, np.zeros_like(gt[9]))
 
 
+def _transparent_bottle_clip(T=12, H=160, W=220, hand_at_it=True):
+    """A clear bottle carried up and to the right across a textured background, turning
+    2 degrees a frame: inside its outline the background shows through (a little darker and
+    shifted, as refraction does), and only its 2 px rim, darker still, outlines it. A
+    right hand holds it by its left side, or (``hand_at_it`` False) moves along 60 px
+    below it. -> (images, the bottle's masks, MediaPipe-like keypoints)."""
+    bg = _texture(H, W, seed=4)
+    seen_through = (0.8 * np.roll(bg, 3, axis=1)).astype(np.uint8)
+    yy, xx = np.mgrid[:H, :W]
+    images, gt, wrists = [], [], []
+    for t in range(T):
+        cx, cy, a = 50 + 10 * t, 100 - 3 * t, np.radians(2 * t)
+        u = (xx + 0.5 - cx) * np.cos(a) + (yy + 0.5 - cy) * np.sin(a)
+        v = -(xx + 0.5 - cx) * np.sin(a) + (yy + 0.5 - cy) * np.cos(a)
+        inside = (np.abs(u) <= 9) & (np.abs(v) <= 22)
+        rim = inside & ~((np.abs(u) <= 7) & (np.abs(v) <= 20))
+        im = bg.copy()
+        im[inside] = seen_through[inside]
+        im[rim] = (0.35 * bg[rim]).astype(np.uint8)
+        images.append(im)
+        gt.append(inside)
+        wrists.append((cx - 14, cy if hand_at_it else cy + 60))
+    return np.stack(images), np.stack(gt), _hand_keypoints(T, wrists, palm=9)
+
+
+def test_a_transparent_object_held_between_two_prompts_is_followed_by_its_outline():
+    # Its colours are the background's, so the colour cues take patches of background for
+    # it (trusted, too). Its outline still shows as an edge: between the two boxes the
+    # prompts' outlines, followed by the edges, meet on it in the hand that holds it.
+    from cogs.preprocess.outline import OUTLINE_CONFIDENCE
+
+    images, gt, kp = _transparent_bottle_clip()
+    T = len(images)
+    cues = []
+    masks, conf = O.propagate_masks(images, [gt[0], gt[-1]], [0, T - 1], kp2d=kp, cues=cues)
+    for t in range(1, T - 1):
+        assert cues[t] == "outline" and conf[t] == OUTLINE_CONFIDENCE and _iou(masks[t], gt[t]) > 0.75, (t, cues[t], _iou(masks[t], gt[t]))
+    # The same bottle with no hand at it: no outline is taken, and colour alone misses it.
+    images, gt, kp = _transparent_bottle_clip(hand_at_it=False)
+    masks, conf = O.propagate_masks(images, [gt[0], gt[-1]], [0, T - 1], kp2d=kp, cues=cues)
+    assert "outline" not in cues
+    assert min(_iou(masks[t], gt[t]) for t in range(1, T - 1)) < 0.5
+
+
+def test_outlines_from_two_prompts_bridge_them_only_where_they_meet_in_a_hand():
+    from cogs.preprocess.outline import bridge
+
+    images, gt, kp = _transparent_bottle_clip()
+    T = len(images)
+    shapes, switch, agree = bridge(images, gt[0], 0, gt[-1], T - 1, kp)
+    assert sorted(shapes) == list(range(1, T - 1)) and 0 <= switch < T and agree >= 0.6
+    # A second prompt where the bottle is not (the box drawn on the wrong frame): the pass
+    # from it never meets the other.
+    elsewhere = np.roll(gt[-1], (40, -120), axis=(0, 1))
+    assert bridge(images, gt[0], 0, elsewhere, T - 1, kp) is None
+    # Passes that meet, on an object no hand holds.
+    _, _, away = _transparent_bottle_clip(hand_at_it=False)
+    assert bridge(images, gt[0], 0, gt[-1], T - 1, away) is None
+    # Neighbouring prompts leave nothing between them.
+    assert bridge(images, gt[0], 0, gt[1], 1, kp) is None
+
+
+def test_an_outline_is_fitted_to_the_edges_that_count_and_not_to_a_stronger_one_beside_it():
+    # A faint outlined bar and, 9 px to its left, a strong bar of the same shape (a forearm
+    # beside a held bottle): from between them the fit goes to the strong one unless its
+    # pixels are marked as saying nothing of the object.
+    from cogs.preprocess.outline import Outline, fit
+
+    H, W = 80, 80
+    yy, xx = np.mgrid[:H, :W]
+    rgb = np.full((H, W, 3), 120, np.uint8)
+    faint = (np.abs(xx - 45) <= 4) & (np.abs(yy - 40) <= 15)
+    strong = (np.abs(xx - 27) <= 4) & (np.abs(yy - 40) <= 15)
+    rgb[faint] = 150
+    rgb[strong] = 250
+    outline = Outline.of(faint)
+    start = (-9.0, 0.0, 0.0, 1.0)  # halfway between the two
+    pose, _ = fit(outline, rgb, start)
+    assert abs(pose[0] - -18) <= 1 and abs(pose[1]) <= 1  # onto the strong bar
+    pose, _ = fit(outline, rgb, start, off=(np.abs(xx - 27) <= 8) & (np.abs(yy - 40) <= 19))
+    assert abs(pose[0]) <= 1 and abs(pose[1]) <= 1 and abs(pose[3] - 1.0) < 0.1  # back on the faint one
+    assert _iou(outline.mask(pose, (H, W)), faint) > 0.85
+    assert Outline.of(np.zeros((H, W), bool)) is None and Outline.of((xx == 5) & (yy == 5)) is None
+
+
 def test_a_mask_along_a_forearm_frame_after_frame_is_the_arm_and_not_the_object():
     from cogs.preprocess.tracking import forearm_regions, on_forearm
 

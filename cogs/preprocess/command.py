@@ -57,7 +57,8 @@ class Preprocess:
     """Object prompt: a box X0 Y0 X1 Y1 around the object, in pixels of the input video, on
     frame --object-box-frame. Repeat it as --object-box FRAME X0 Y0 X1 Y1, one per frame,
     to prompt several frames (e.g. where the tracker lost the object): the tracker restarts
-    from each box."""
+    from each box, and between two boxes an object held in a hand is also followed by its
+    outline's edges (a transparent bottle)."""
 
     object_box_frame: int | None = None
     """Index (among the kept frames) of the frame the single box X0 Y0 X1 Y1 is drawn on

@@ -60,6 +60,11 @@ followed there by motion from such a frame (``carried_on``), or shows off the pe
 the frames that found the object elsewhere show there (``_Tracker.shows_the_scene``: the
 floor a transparent bottle was lifted off, where the track stayed).
 
+Between two prompts, where a hand holds the object, the two prompts' outlines followed by
+the image's edges alone (``outline.bridge``) give the frames the colour cues saw less than
+clearly (a transparent bottle, whose colours are whatever lies behind it), at
+``OUTLINE_CONFIDENCE``; frames they lost stay lost.
+
 Hands matter throughout: a handled object is always next to one, the fingers cover it, and
 a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
 (wrist, pinky, index and thumb points of each hand). So do the feet for a kicked ball
@@ -79,6 +84,7 @@ import numpy as np
 
 from cogs.errors import UserError
 from cogs.preprocess.background import StaticScene, colour_residual, person_free
+from cogs.preprocess.outline import OUTLINE_CONFIDENCE, bridge
 from cogs.preprocess.segment import (
     ColourModel,
     convex_hull,
@@ -1912,8 +1918,14 @@ def propagate_masks(
                 w[[u for u in range(T) if unfound[u] and cu[u]]] = -direction  # tracked back from t
 
     # Between two prompts: a pass from each towards the other, each reaching the other's
-    # frame; the frames between take one or the other (``combine_passes``).
+    # frame; the frames between take one or the other (``combine_passes``). And the two
+    # prompts' outlines, followed by their edges, where they meet in a hand (``bridge``).
+    bridges = []
     for a, b in zip(frames[:-1], frames[1:]):
+        if kp2d is not None:
+            bridged = bridge(images, prompts[a], a, prompts[b], b, kp2d)
+            if bridged is not None:
+                bridges.append((a, b, *bridged))
         passes = []
         for k, direction, stop in ((a, +1, b + 1), (b, -1, a - 1)):
             m, c, cu, w = np.zeros((T, H, W), bool), np.zeros(T), [""] * T, np.full(T, direction)
@@ -1942,6 +1954,16 @@ def propagate_masks(
     for t in list(range(frames[-1] + 1, T)) + list(range(frames[0])):
         origin[t] = frames[-1] if t > frames[-1] else frames[0]
     cross_check(tracker, masks, conf, found, origin, way)
+    for a, b, shapes, switch, agree in bridges:
+        # A frame the colour cues saw clearly keeps its mask, and one they lost stays lost
+        # (hidden, for all a followed outline can tell); the others take the outline
+        # where a hand holds it.
+        took = [t for t, shape in shapes.items()
+                if 0.0 < conf[t] < CLEAR_CONFIDENCE and holding_hand(kp2d, t, shape) is not None]
+        for t in took:
+            masks[t], conf[t], found[t], origin[t] = shapes[t], OUTLINE_CONFIDENCE, "outline", a if t <= switch else b
+        log.info("prompts %d and %d: their outlines, followed by the image's edges, meet at frame %d (IoU %.2f) in a hand; "
+                 "%d frame(s) between them take the outline", a, b, switch, agree, len(took))
     if kp2d is not None:
         # The arm that holds the object is not the object, whatever cue found it there.
         for t in np.flatnonzero(carried_on(on_forearm(masks, kp2d), masks, found)):

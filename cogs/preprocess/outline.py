@@ -1,0 +1,239 @@
+"""An object's outline followed through the frames by the image's edges alone.
+
+Over a few frames a rigid object's silhouette is its outline in an earlier frame moved,
+turned and scaled in the image. Where the object's colours do not set it apart from what
+lies behind it (a transparent bottle shows the floor or the shirt behind it, and a colour
+model of it calls both object), its outline still shows as an edge. ``follow`` fits a
+prompt's outline to each frame's colour gradients in turn, each fit starting from the
+last.
+
+Alone, a followed outline drifts onto a neighbouring edge (the forearm beside a bottle,
+a crease in the trousers) and nothing in a frame says when: the edge there is as strong
+as the object's, often stronger. So it is only used between two prompts (``bridge``): a
+pass from each, towards the other, must meet, the two outlines lying on each other in
+some frame (``BRIDGE_AGREE``), and a hand must hold the result (``BRIDGE_HELD``): two
+passes that drift apart never meet, and two that drift onto the same edge (a white
+shirt's hem over black shorts) meet away from the hands. Then each frame takes the pass
+that reaches it before that meeting.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# How far an outline may move between two frames, as a share of its longer side: 0.3 of
+# the bottle's 26 px at 384 px is 8 px, which kept up with it being picked up, lifted
+# and opened (docs/experiments/2026-12-05-d-an-outline-followed-by-its-edges.md).
+SEARCH_REACH = 0.3
+MIN_REACH_PX = 3
+# Turns and scalings tried per frame on top of the last frame's.
+TURNS_DEG = tuple(range(-12, 13, 3))
+SCALINGS = (0.92, 1.0, 1.08)
+# An outline no further scaled than this from its prompt's size (a pass that swells onto
+# a larger neighbouring edge, or shrinks onto a fold, stops there).
+MAX_SCALE = 1.6
+# An outline of fewer contour pixels than this is too small to follow by its edges.
+MIN_POINTS = 16
+# At most this many contour points are scored (evenly spaced along the outline).
+MAX_POINTS = 240
+# Two passes meet where their outlines overlap this much (IoU).
+BRIDGE_AGREE = 0.6
+# A bridge holds only where a hand holds the object in this share of its frames at least:
+# the passes between the tennis clip's two boxes both drifted onto the shirt's hem and met
+# there (IoU 0.73), in a hand in 16 % and 23 % of the frames; the bottle's, on the bottle,
+# in 98 % and 100 %.
+BRIDGE_HELD = 0.75
+# The confidence of a frame an outline gives: trusted (``ObjectConfig.min_confidence``)
+# but not a clear view (``tracking.CLEAR_CONFIDENCE``).
+OUTLINE_CONFIDENCE = 0.5
+
+
+@dataclass
+class Outline:
+    """A mask's outer contour: ``polygon`` [P, 2] (pixel centres, for drawing the mask),
+    ``points`` [N, 2] the scored subset and its ``normals`` [N, 2] (unit), around ``centre``
+    [2]; ``extent`` the longer side of its bounding box in pixels."""
+
+    polygon: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    centre: np.ndarray
+    extent: float
+
+    @classmethod
+    def of(cls, mask: np.ndarray) -> "Outline | None":
+        """The outline of ``mask`` [H, W] bool's largest piece, or None where it is too
+        small to follow."""
+        import cv2
+
+        contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not contours:
+            return None
+        c = max(contours, key=cv2.contourArea)[:, 0, :].astype(np.float64) + 0.5
+        if len(c) < MIN_POINTS:
+            return None
+        # The tangent over two pixels either side, the normal across it (its sign does not
+        # matter: the score takes the gradient's size along it).
+        tangent = np.roll(c, -2, axis=0) - np.roll(c, 2, axis=0)
+        normal = np.stack([tangent[:, 1], -tangent[:, 0]], axis=1)
+        length = np.linalg.norm(normal, axis=1)
+        ok = length > 0
+        c_ok, n_ok = c[ok], normal[ok] / length[ok, None]
+        keep = np.unique(np.linspace(0, len(c_ok) - 1, min(MAX_POINTS, len(c_ok))).round().astype(int))
+        centre = c.mean(axis=0)
+        extent = float(max(np.ptp(c[:, 0]), np.ptp(c[:, 1])))
+        return cls(c - centre, c_ok[keep] - centre, n_ok[keep], centre, extent)
+
+    def placed(self, pose: tuple[float, float, float, float], which: str = "points") -> np.ndarray:
+        """The outline's ``points`` (or ``polygon``) in the image under ``pose`` = (dx, dy,
+        turn in radians, scale) about its centre."""
+        dx, dy, th, s = pose
+        c, sn = np.cos(th), np.sin(th)
+        R = np.array([[c, -sn], [sn, c]])
+        return (getattr(self, which) @ R.T) * s + self.centre + (dx, dy)
+
+    def turned_normals(self, th: float) -> np.ndarray:
+        c, sn = np.cos(th), np.sin(th)
+        return self.normals @ np.array([[c, -sn], [sn, c]]).T
+
+    def mask(self, pose: tuple[float, float, float, float], shape: tuple[int, int]) -> np.ndarray:
+        """[H, W] bool: the outline filled under ``pose``."""
+        import cv2
+
+        m = np.zeros(shape, np.uint8)
+        poly = np.round((self.placed(pose, "polygon") - 0.5) * 4).astype(np.int32)
+        cv2.fillPoly(m, [poly], 1, lineType=cv2.LINE_8, shift=2)
+        return m.astype(bool)
+
+
+def gradients(rgb: np.ndarray, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Each colour channel's horizontal and vertical Sobel gradients ([h, w, 3] float32
+    each) inside ``box`` = (x0, y0, x1, y1) of ``rgb`` [H, W, 3] uint8."""
+    import cv2
+
+    x0, y0, x1, y1 = box
+    crop = np.ascontiguousarray(rgb[y0:y1, x0:x1]).astype(np.float32)
+    return cv2.Sobel(crop, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(crop, cv2.CV_32F, 0, 1, ksize=3)
+
+
+def edge_scores(gx: np.ndarray, gy: np.ndarray, origin: np.ndarray, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """[M] mean over an outline's N points of the largest channel's gradient across the
+    outline, for M placements ``points`` [M, N, 2] (image pixels; ``origin`` [2] is the
+    gradient crop's corner) with ``normals`` [N, 2]; points off the crop count 0."""
+    h, w = gx.shape[:2]
+    xy = np.floor(points - origin).astype(np.int64)
+    inside = (xy[..., 0] >= 0) & (xy[..., 0] < w) & (xy[..., 1] >= 0) & (xy[..., 1] < h)
+    xi, yi = np.clip(xy[..., 0], 0, w - 1), np.clip(xy[..., 1], 0, h - 1)
+    across = np.abs(gx[yi, xi] * normals[None, :, None, 0] + gy[yi, xi] * normals[None, :, None, 1]).max(axis=-1)
+    return (across * inside).mean(axis=1)
+
+
+def fit(outline: Outline, rgb: np.ndarray, pose: tuple[float, float, float, float],
+        off: np.ndarray | None = None) -> tuple[tuple[float, float, float, float], float]:
+    """The pose near ``pose`` whose outline lies best on ``rgb``'s edges, and its edge
+    score: every turn in ``TURNS_DEG`` and scaling in ``SCALINGS`` of it, each moved
+    within ``SEARCH_REACH`` of the outline's size (on a grid, then to the pixel)."""
+    H, W = rgb.shape[:2]
+    reach = max(MIN_REACH_PX, int(round(SEARCH_REACH * outline.extent * pose[3])))
+    step = max(1, reach // 4)
+    placed = outline.placed(pose, "polygon")
+    pad = reach + int(np.ceil(0.1 * outline.extent * pose[3])) + 2
+    box = (max(int(placed[:, 0].min()) - pad, 0), max(int(placed[:, 1].min()) - pad, 0),
+           min(int(np.ceil(placed[:, 0].max())) + pad + 1, W), min(int(np.ceil(placed[:, 1].max())) + pad + 1, H))
+    if box[2] - box[0] < 3 or box[3] - box[1] < 3:
+        return pose, 0.0
+    gx, gy = gradients(rgb, box)
+    if off is not None:  # edges that say nothing of the object
+        gx[off[box[1]:box[3], box[0]:box[2]]] = 0.0
+        gy[off[box[1]:box[3], box[0]:box[2]]] = 0.0
+    origin = np.array(box[:2], dtype=np.float64)
+
+    def grid(half: int, by: int) -> np.ndarray:
+        o = np.arange(-half, half + 1, by, dtype=np.float64)
+        return np.stack(np.meshgrid(o, o), axis=-1).reshape(-1, 2)
+
+    best_score, best = -1.0, pose
+    coarse = grid(reach, step)
+    for turn in np.radians(TURNS_DEG):
+        th = pose[2] + turn
+        normals = outline.turned_normals(th)
+        for k in SCALINGS:
+            s = float(np.clip(pose[3] * k, 1.0 / MAX_SCALE, MAX_SCALE))
+            pts = outline.placed((pose[0], pose[1], th, s))
+            sc = edge_scores(gx, gy, origin, pts[None] + coarse[:, None], normals)
+            i = int(np.argmax(sc))
+            if sc[i] > best_score:
+                best_score, best = float(sc[i]), (pose[0] + coarse[i, 0], pose[1] + coarse[i, 1], th, s)
+    if step > 1:
+        fine = grid(step - 1, 1)
+        pts = outline.placed(best)
+        sc = edge_scores(gx, gy, origin, pts[None] + fine[:, None], outline.turned_normals(best[2]))
+        i = int(np.argmax(sc))
+        if sc[i] > best_score:
+            best_score, best = float(sc[i]), (best[0] + fine[i, 0], best[1] + fine[i, 1], best[2], best[3])
+    return best, best_score
+
+
+def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray | None = None) -> dict[int, np.ndarray] | None:
+    """Frame start's ``mask`` [H, W] bool followed by its outline's edges through the frames
+    from start towards ``stop`` (inclusive; either direction) -> {frame: [H, W] bool}; None
+    where the mask is too small to follow. With MediaPipe's keypoints ``kp2d`` [T, 33, 3],
+    an outline a hand holds (``tracking.holding_hand``) is looked for where that hand took
+    it, and the forearms' edges do not count (``tracking.forearm_regions``)."""
+    from cogs.preprocess.tracking import forearm_regions, hand_points, hand_regions, holding_hand
+
+    outline = Outline.of(mask)
+    if outline is None:
+        return None
+    H, W = images.shape[1:3]
+    hands = hand_points(kp2d)
+    direction = 1 if stop >= start else -1
+    pose = (0.0, 0.0, 0.0, 1.0)
+    out, last = {}, mask
+    for t in range(start + direction, stop + direction, direction):
+        h = None if kp2d is None else holding_hand(kp2d, t - direction, last)
+        if h is not None and hands[t - direction, h, 2] >= 0.5 and hands[t, h, 2] >= 0.5:
+            shift = hands[t, h, :2] - hands[t - direction, h, :2]
+            pose = (pose[0] + float(shift[0]), pose[1] + float(shift[1]), pose[2], pose[3])
+        # A forearm's long straight edges beside a held object draw its outline onto the
+        # arm: they count for nothing (the hand beyond the wrist still does).
+        off = None if kp2d is None else forearm_regions(kp2d[t], (H, W)) & ~hand_regions(kp2d[t], (H, W))
+        pose, _ = fit(outline, images[t], pose, off)
+        out[t] = last = outline.mask(pose, (H, W))
+    return out
+
+
+def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b: int, kp2d: np.ndarray,
+           agree: float = BRIDGE_AGREE, held: float = BRIDGE_HELD) -> tuple[dict[int, np.ndarray], int, float] | None:
+    """The frames strictly between prompts a < b given by their outlines, for an object a
+    hand holds: a pass from each prompt towards the other (``follow``); the frames up to
+    the one where the two overlap most take the pass from a, the rest the pass from b.
+    -> ({frame: [H, W] bool}, that frame, its IoU), or None where the passes never overlap
+    by ``agree`` (one drifted off the object, or both did), where a hand (``kp2d`` [T, 33,
+    3], ``tracking.holding_hand``) holds the result in under ``held`` of those frames, or
+    where a prompt is too small to follow."""
+    from cogs.preprocess.tracking import holding_hand
+
+    if b - a < 2:
+        return None
+    fwd = follow(images, mask_a, a, b, kp2d)
+    bwd = follow(images, mask_b, b, a, kp2d)
+    if fwd is None or bwd is None:
+        return None
+    fwd[a], bwd[b] = mask_a, mask_b
+    overlap = []
+    for t in range(a, b + 1):
+        inter = np.count_nonzero(fwd[t] & bwd[t])
+        union = np.count_nonzero(fwd[t] | bwd[t])
+        overlap.append(inter / union if union else 0.0)
+    meet = int(np.argmax(overlap))
+    if overlap[meet] < agree:
+        return None
+    switch = a + meet
+    shapes = {t: (fwd[t] if t <= switch else bwd[t]) for t in range(a + 1, b)}
+    in_hand = np.mean([holding_hand(kp2d, t, m) is not None for t, m in shapes.items()])
+    if in_hand < held:
+        return None
+    return shapes, switch, float(overlap[meet])
