@@ -176,12 +176,14 @@ def fit(outline: Outline, rgb: np.ndarray, pose: tuple[float, float, float, floa
     return best, best_score
 
 
-def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray | None = None) -> dict[int, np.ndarray] | None:
+def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int,
+           kp2d: np.ndarray | None = None) -> tuple[Outline, dict[int, tuple[float, float, float, float]]] | None:
     """Frame start's ``mask`` [H, W] bool followed by its outline's edges through the frames
-    from start towards ``stop`` (inclusive; either direction) -> {frame: [H, W] bool}; None
-    where the mask is too small to follow. With MediaPipe's keypoints ``kp2d`` [T, 33, 3],
-    an outline a hand holds (``tracking.holding_hand``) is looked for where that hand took
-    it, and the forearms' edges do not count (``tracking.forearm_regions``)."""
+    from start towards ``stop`` (inclusive; either direction) -> (its outline, {frame:
+    pose}: ``Outline.mask`` draws each); None where the mask is too small to follow. With
+    MediaPipe's keypoints ``kp2d`` [T, 33, 3], an outline a hand holds
+    (``tracking.holding_hand``) is looked for where that hand took it, and the forearms'
+    edges do not count (``tracking.forearm_regions``)."""
     from cogs.preprocess.tracking import forearm_regions, hand_points, hand_regions, holding_hand
 
     outline = Outline.of(mask)
@@ -191,7 +193,7 @@ def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np
     hands = hand_points(kp2d)
     direction = 1 if stop >= start else -1
     pose = (0.0, 0.0, 0.0, 1.0)
-    out, last = {}, mask
+    poses, last = {}, mask
     for t in range(start + direction, stop + direction, direction):
         h = None if kp2d is None else holding_hand(kp2d, t - direction, last)
         if h is not None and hands[t - direction, h, 2] >= 0.5 and hands[t, h, 2] >= 0.5:
@@ -201,8 +203,10 @@ def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np
         # arm: they count for nothing (the hand beyond the wrist still does).
         off = None if kp2d is None else forearm_regions(kp2d[t], (H, W)) & ~hand_regions(kp2d[t], (H, W))
         pose, _ = fit(outline, images[t], pose, off)
-        out[t] = last = outline.mask(pose, (H, W))
-    return out
+        poses[t] = pose
+        if kp2d is not None:
+            last = outline.mask(pose, (H, W))
+    return outline, poses
 
 
 def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b: int, kp2d: np.ndarray,
@@ -218,21 +222,25 @@ def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b
 
     if b - a < 2:
         return None
-    fwd = follow(images, mask_a, a, b, kp2d)
-    bwd = follow(images, mask_b, b, a, kp2d)
+    fwd, bwd = follow(images, mask_a, a, b, kp2d), follow(images, mask_b, b, a, kp2d)
     if fwd is None or bwd is None:
         return None
-    fwd[a], bwd[b] = mask_a, mask_b
+    shape = images.shape[1:3]
+
+    def drawn(passed, t: int, prompt: np.ndarray) -> np.ndarray:
+        outline, poses = passed
+        return outline.mask(poses[t], shape) if t in poses else prompt
+
     overlap = []
     for t in range(a, b + 1):
-        inter = np.count_nonzero(fwd[t] & bwd[t])
-        union = np.count_nonzero(fwd[t] | bwd[t])
-        overlap.append(inter / union if union else 0.0)
+        f, g = drawn(fwd, t, mask_a), drawn(bwd, t, mask_b)
+        union = np.count_nonzero(f | g)
+        overlap.append(np.count_nonzero(f & g) / union if union else 0.0)
     meet = int(np.argmax(overlap))
     if overlap[meet] < agree:
         return None
     switch = a + meet
-    shapes = {t: (fwd[t] if t <= switch else bwd[t]) for t in range(a + 1, b)}
+    shapes = {t: (drawn(fwd, t, mask_a) if t <= switch else drawn(bwd, t, mask_b)) for t in range(a + 1, b)}
     in_hand = np.mean([holding_hand(kp2d, t, m) is not None for t, m in shapes.items()])
     if in_hand < held:
         return None
