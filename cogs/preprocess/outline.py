@@ -176,14 +176,15 @@ def fit(outline: Outline, rgb: np.ndarray, pose: tuple[float, float, float, floa
     return best, best_score
 
 
-def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int,
-           kp2d: np.ndarray | None = None) -> tuple[Outline, dict[int, tuple[float, float, float, float]]] | None:
+def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray | None = None,
+           on_frame=None) -> tuple[Outline, dict[int, tuple[float, float, float, float]]] | None:
     """Frame start's ``mask`` [H, W] bool followed by its outline's edges through the frames
     from start towards ``stop`` (inclusive; either direction) -> (its outline, {frame:
     pose}: ``Outline.mask`` draws each); None where the mask is too small to follow. With
     MediaPipe's keypoints ``kp2d`` [T, 33, 3], an outline a hand holds
     (``tracking.holding_hand``) is looked for where that hand took it, and the forearms'
-    edges do not count (``tracking.forearm_regions``)."""
+    edges do not count (``tracking.forearm_regions``). ``on_frame()`` is called after each
+    frame."""
     from cogs.preprocess.tracking import forearm_regions, hand_points, hand_regions, holding_hand
 
     outline = Outline.of(mask)
@@ -206,23 +207,26 @@ def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int,
         poses[t] = pose
         if kp2d is not None:
             last = outline.mask(pose, (H, W))
+        if on_frame:
+            on_frame()
     return outline, poses
 
 
 def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b: int, kp2d: np.ndarray,
-           agree: float = BRIDGE_AGREE, held: float = BRIDGE_HELD) -> tuple[dict[int, np.ndarray], int, float] | None:
+           agree: float = BRIDGE_AGREE, held: float = BRIDGE_HELD, on_frame=None) -> tuple[dict[int, np.ndarray], int, float] | None:
     """The frames strictly between prompts a < b given by their outlines, for an object a
     hand holds: a pass from each prompt towards the other (``follow``); the frames up to
     the one where the two overlap most take the pass from a, the rest the pass from b.
     -> ({frame: [H, W] bool}, that frame, its IoU), or None where the passes never overlap
     by ``agree`` (one drifted off the object, or both did), where a hand (``kp2d`` [T, 33,
     3], ``tracking.holding_hand``) holds the result in under ``held`` of those frames, or
-    where a prompt is too small to follow."""
+    where a prompt is too small to follow. ``on_frame()`` is called after each frame a pass
+    fits."""
     from cogs.preprocess.tracking import holding_hand
 
     if b - a < 2:
         return None
-    fwd, bwd = follow(images, mask_a, a, b, kp2d), follow(images, mask_b, b, a, kp2d)
+    fwd, bwd = follow(images, mask_a, a, b, kp2d, on_frame), follow(images, mask_b, b, a, kp2d, on_frame)
     if fwd is None or bwd is None:
         return None
     shape = images.shape[1:3]

@@ -1899,14 +1899,25 @@ def propagate_masks(
         if like_person is not None:
             like_person[k] = tracker.like_person[k]
     done = [len(frames)]
+    # The bar counts every frame once, and each frame an outline is fitted to between two
+    # prompts (``bridge``) as one more: it shows their sum as a share of the frames.
+    pairs = list(zip(frames[:-1], frames[1:]))
+    outline_total = 0 if kp2d is None else sum(2 * (b - a) for a, b in pairs if b - a >= 2)
+    outlined = [0]
+
+    def report():
+        if on_frame:
+            on_frame(min(int((done[0] + outlined[0]) * T / (T + outline_total)), T))
 
     def tick():
         done[0] += 1
-        if on_frame:
-            on_frame(min(done[0], T))
+        report()
 
-    if on_frame:
-        on_frame(len(frames))
+    def outline_tick():
+        outlined[0] += 1
+        report()
+
+    report()
 
     def fill_gaps(m, c, cu, start: int, direction: int, end: int, w: np.ndarray) -> None:
         # Back into each gap from where the object was found again (it reappeared with a
@@ -1921,9 +1932,9 @@ def propagate_masks(
     # frame; the frames between take one or the other (``combine_passes``). And the two
     # prompts' outlines, followed by their edges, where they meet in a hand (``bridge``).
     bridges = []
-    for a, b in zip(frames[:-1], frames[1:]):
+    for a, b in pairs:
         if kp2d is not None:
-            bridged = bridge(images, prompts[a], a, prompts[b], b, kp2d)
+            bridged = bridge(images, prompts[a], a, prompts[b], b, kp2d, on_frame=outline_tick)
             if bridged is not None:
                 bridges.append((a, b, *bridged))
         passes = []
@@ -1942,8 +1953,7 @@ def propagate_masks(
             src = (mb, cb, cub, b, wb) if second[t - a] else (ma, ca, cua, a, wa)
             masks[t], conf[t], found[t], origin[t], way[t] = src[0][t], src[1][t], src[2][t], src[3], src[4][t]
         done[0] -= b - a + 1  # two passes cover these frames (and reach the prompts): the bar counts each once
-        if on_frame:
-            on_frame(min(done[0], T))
+        report()
     # Before the first prompt and after the last: that prompt's pass, as with one prompt.
     for k, direction in ((frames[-1], +1), (frames[0], -1)):
         tracker.use(k)
