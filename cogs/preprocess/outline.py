@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cogs.preprocess.hands import forearm_regions, hand_points, hand_regions, holding_hand
+
 # How far an outline may move between two frames, as a share of its longer side: 0.3 of
 # the bottle's 26 px at 384 px is 8 px, which kept up with it being picked up, lifted
 # and opened (docs/experiments/2026-12-05-d-an-outline-followed-by-its-edges.md).
@@ -40,10 +42,10 @@ MIN_POINTS = 16
 MAX_POINTS = 240
 # Two passes meet where their outlines overlap this much (IoU).
 BRIDGE_AGREE = 0.6
-# A bridge holds only where a hand holds the object in this share of its frames at least:
-# the passes between the tennis clip's two boxes both drifted onto the shirt's hem and met
-# there (IoU 0.73), in a hand in 16 % and 23 % of the frames; the bottle's, on the bottle,
-# in 98 % and 100 %.
+# A bridge holds only where a hand holds the object (``hands.holding_hand``) in this share of
+# its frames at least: the passes between the tennis clip's two boxes both drifted onto the
+# shirt's hem and met there (IoU 0.73), in a hand in 16 % and 23 % of the frames; the
+# bottle's, on the bottle, in 98 % and 100 %.
 BRIDGE_HELD = 0.75
 # The confidence of a frame an outline gives: trusted (``ObjectConfig.min_confidence``)
 # but not a clear view (``tracking.CLEAR_CONFIDENCE``).
@@ -182,11 +184,9 @@ def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np
     from start towards ``stop`` (inclusive; either direction) -> (its outline, {frame:
     pose}: ``Outline.mask`` draws each); None where the mask is too small to follow. With
     MediaPipe's keypoints ``kp2d`` [T, 33, 3], an outline a hand holds
-    (``tracking.holding_hand``) is looked for where that hand took it, and the forearms'
-    edges do not count (``tracking.forearm_regions``). ``on_frame()`` is called after each
+    (``hands.holding_hand``) is looked for where that hand took it, and the forearms'
+    edges do not count (``hands.forearm_regions``). ``on_frame()`` is called after each
     frame."""
-    from cogs.preprocess.tracking import forearm_regions, hand_points, hand_regions, holding_hand
-
     outline = Outline.of(mask)
     if outline is None:
         return None
@@ -219,11 +219,9 @@ def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b
     the one where the two overlap most take the pass from a, the rest the pass from b.
     -> ({frame: [H, W] bool}, that frame, its IoU), or None where the passes never overlap
     by ``agree`` (one drifted off the object, or both did), where a hand (``kp2d`` [T, 33,
-    3], ``tracking.holding_hand``) holds the result in under ``held`` of those frames, or
+    3], ``hands.holding_hand``) holds the result in under ``held`` of those frames, or
     where a prompt is too small to follow. ``on_frame()`` is called after each frame a pass
     fits."""
-    from cogs.preprocess.tracking import holding_hand
-
     if b - a < 2:
         return None
     fwd, bwd = follow(images, mask_a, a, b, kp2d, on_frame), follow(images, mask_b, b, a, kp2d, on_frame)
