@@ -136,7 +136,8 @@ def fit(outline: Outline, rgb: np.ndarray, pose: tuple[float, float, float, floa
         off: np.ndarray | None = None) -> tuple[tuple[float, float, float, float], float]:
     """The pose near ``pose`` whose outline lies best on ``rgb``'s edges, and its edge
     score: every turn in ``TURNS_DEG`` and scaling in ``SCALINGS`` of it, each moved
-    within ``SEARCH_REACH`` of the outline's size (on a grid, then to the pixel)."""
+    within ``SEARCH_REACH`` of the outline's size (on a grid, then to the pixel). ``off``
+    [H, W] bool: pixels whose edges count for nothing."""
     H, W = rgb.shape[:2]
     reach = max(MIN_REACH_PX, int(round(SEARCH_REACH * outline.extent * pose[3])))
     step = max(1, reach // 4)
