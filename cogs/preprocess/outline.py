@@ -92,13 +92,10 @@ class Outline:
         """The outline's ``points`` (or ``polygon``) in the image under ``pose`` = (dx, dy,
         turn in radians, scale) about its centre."""
         dx, dy, th, s = pose
-        c, sn = np.cos(th), np.sin(th)
-        R = np.array([[c, -sn], [sn, c]])
-        return (getattr(self, which) @ R.T) * s + self.centre + (dx, dy)
+        return (getattr(self, which) @ _turn(th).T) * s + self.centre + (dx, dy)
 
     def turned_normals(self, th: float) -> np.ndarray:
-        c, sn = np.cos(th), np.sin(th)
-        return self.normals @ np.array([[c, -sn], [sn, c]]).T
+        return self.normals @ _turn(th).T
 
     def mask(self, pose: tuple[float, float, float, float], shape: tuple[int, int]) -> np.ndarray:
         """[H, W] bool: the outline filled under ``pose``."""
@@ -108,6 +105,12 @@ class Outline:
         poly = np.round((self.placed(pose, "polygon") - 0.5) * 4).astype(np.int32)
         cv2.fillPoly(m, [poly], 1, lineType=cv2.LINE_8, shift=2)
         return m.astype(bool)
+
+
+def _turn(th: float) -> np.ndarray:
+    """[2, 2] rotation by ``th`` radians (image axes)."""
+    c, sn = np.cos(th), np.sin(th)
+    return np.array([[c, -sn], [sn, c]])
 
 
 def gradients(rgb: np.ndarray, box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
