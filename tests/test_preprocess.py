@@ -909,14 +909,15 @@ def test_a_mask_that_cannot_be_told_from_its_surroundings_is_not_trusted():
     assert tracker.unclear(9, gt[9]) and not tracker.unclear(9, np.zeros_like(gt[9]))
 
 
-def _transparent_bottle_clip(T=12, H=160, W=220, hand_at_it=True):
+def _transparent_bottle_clip(T=12, H=160, W=220, hand_at_it=True, let_go=None, tint=0.8):
     """A clear bottle carried up and to the right across a textured background, turning
     2 degrees a frame: inside its outline the background shows through (a little darker and
     shifted, as refraction does), and only its 2 px rim, darker still, outlines it. A
     right hand holds it by its left side, or (``hand_at_it`` False) moves along 60 px
-    below it. -> (images, the bottle's masks, MediaPipe-like keypoints)."""
+    below it; from frame ``let_go`` on it leaves the bottle, 12 px further down a frame.
+    -> (images, the bottle's masks, MediaPipe-like keypoints)."""
     bg = _texture(H, W, seed=4)
-    seen_through = (0.8 * np.roll(bg, 3, axis=1)).astype(np.uint8)
+    seen_through = (tint * np.roll(bg, 3, axis=1)).astype(np.uint8)
     yy, xx = np.mgrid[:H, :W]
     images, gt, wrists = [], [], []
     for t in range(T):
@@ -930,8 +931,24 @@ def _transparent_bottle_clip(T=12, H=160, W=220, hand_at_it=True):
         im[rim] = (0.35 * bg[rim]).astype(np.uint8)
         images.append(im)
         gt.append(inside)
-        wrists.append((cx - 14, cy if hand_at_it else cy + 60))
+        away = 0 if let_go is None or t < let_go else min(60, 12 * (t - let_go + 1))
+        wrists.append((cx - 14, cy + away if hand_at_it else cy + 60))
     return np.stack(images), np.stack(gt), _hand_keypoints(T, wrists, palm=9)
+
+
+def _bottle_beside_its_forearm(T=12):
+    """``_transparent_bottle_clip`` with the forearm that holds the bottle drawn from the
+    elbow to the wrist, as dark as the bottle's rim: the bottle's colour model (the rim,
+    and the background it shows) finds the arm. -> (images, the bottle's masks,
+    keypoints)."""
+    images, gt, kp = _transparent_bottle_clip(T)
+    H, W = gt.shape[1:]
+    yy, xx = np.mgrid[:H, :W]
+    for t in range(T):
+        (ex, ey), (wx, wy) = kp[t, 14, :2], kp[t, 16, :2]
+        arm = (xx >= ex) & (xx <= wx) & (np.abs(yy - wy) <= 4)
+        images[t][arm] = (0.35 * images[t][arm]).astype(np.uint8)
+    return images, gt, kp
 
 
 def test_a_transparent_object_held_between_two_prompts_is_followed_by_its_outline():
@@ -969,6 +986,72 @@ def test_outlines_from_two_prompts_bridge_them_only_where_they_meet_in_a_hand():
     assert bridge(images, gt[0], 0, gt[-1], T - 1, away) is None
     # Neighbouring prompts leave nothing between them.
     assert bridge(images, gt[0], 0, gt[1], 1, kp) is None
+
+
+def test_beyond_the_last_prompt_a_held_object_is_followed_by_its_outline_while_its_hand_holds_it():
+    # One prompt: no second one checks a pass, so the outline is followed only as far as
+    # the hand that holds the prompt holds it.
+    from cogs.preprocess.outline import beyond
+
+    images, gt, kp = _transparent_bottle_clip()
+    T = len(images)
+    shapes = beyond(images, gt[-1], T - 1, 0, kp)
+    assert sorted(shapes) == list(range(T - 1)) and all(_iou(shapes[t], gt[t]) > 0.75 for t in shapes)
+    # The hand leaves it from frame 7 on, 12 px a frame: the pass from frame 0 ends within
+    # two frames, where the hand no longer covers the outline, still on the bottle.
+    images, gt, kp = _transparent_bottle_clip(let_go=7)
+    shapes = beyond(images, gt[0], 0, T - 1, kp)
+    assert sorted(shapes) == list(range(1, max(shapes) + 1)) and 6 <= max(shapes) <= 8, sorted(shapes)
+    assert all(_iou(shapes[t], gt[t]) > 0.75 for t in shapes)
+    # No hand holds the prompt: no pass.
+    images, gt, kp = _transparent_bottle_clip(hand_at_it=False)
+    assert beyond(images, gt[0], 0, T - 1, kp) is None
+
+
+def test_a_lone_outline_gives_the_frames_whose_colour_find_is_doubted_and_none_the_colour_cues_trust():
+    # A clear bottle whose dark rim has the colours of the forearm holding it: the colour
+    # cues slide onto the arm from the first frame on, and doubt every find there (on the
+    # arm: 0.1; IoU 0 with the bottle, checked). The outline, followed by the rim, gives
+    # those frames. Where the colour cues trust what they found (the bottle alone, pieces
+    # of the background it shows), a lone outline overrides nothing.
+    from cogs.preprocess.outline import LONE_CONFIDENCE
+    from cogs.preprocess.tracking import UNCLEAR_CONFIDENCE
+
+    images, gt, kp = _transparent_bottle_clip()
+    T = len(images)
+    cues = []
+    masks, conf = O.propagate_masks(images, gt[-1], T - 1, kp2d=kp, cues=cues)
+    assert "outline" not in cues and (conf[:-1] >= 0.2).all(), conf
+    images, gt, kp = _bottle_beside_its_forearm()
+    masks, conf = O.propagate_masks(images, gt[0], 0, kp2d=kp, cues=cues)
+    took = [t for t in range(T) if cues[t] == "outline"]
+    assert len(took) >= T // 2, cues
+    assert all(conf[t] == LONE_CONFIDENCE and _iou(masks[t], gt[t]) > 0.75 for t in took)
+    assert all(conf[t] <= UNCLEAR_CONFIDENCE or _iou(masks[t], gt[t]) > 0.5 for t in range(1, T))
+
+
+def test_a_lone_outline_holds_until_a_trusted_find_lies_beyond_its_reach():
+    from cogs.preprocess.outline import within_reach
+    from cogs.preprocess.tracking import lone_outline_frames
+
+    T, H, W = 8, 100, 100
+    yy, xx = np.mgrid[:H, :W]
+    bottle = (np.abs(xx - 50) <= 6) & (np.abs(yy - 50) <= 15)  # the outline, 31 px tall: reach 9 px
+    base = (np.abs(xx - 50) <= 5) & (np.abs(yy - 70) <= 3)  # just below it (a bottle's base)
+    far = (np.abs(xx - 85) <= 5) & (np.abs(yy - 50) <= 5)
+    assert within_reach(base, bottle) and not within_reach(far, bottle) and not within_reach(base, np.zeros_like(bottle))
+    shapes = {t: bottle for t in range(1, T)}  # a pass after the prompt on frame 0
+    masks = np.stack([bottle, base, base, bottle, far, far, base, base])
+    conf = np.array([1.0, 0.1, 0.4, 0.9, 0.1, 0.5, 0.1, 0.1])
+    # 1: doubted and within reach; 2 trusted and within reach, 3 clear: they keep their
+    # masks; 4 far but doubted; 5 far and trusted: the pass ends there.
+    assert lone_outline_frames(0, shapes, masks, conf) == [1, 4]
+    # A frame the colour cues lost (hidden) ends it too.
+    conf[2] = 0.0
+    assert lone_outline_frames(0, shapes, masks, conf) == [1]
+    # The same pass before a prompt on the last frame runs the other way.
+    back = {t: bottle for t in range(T - 1)}
+    assert lone_outline_frames(T - 1, back, masks, conf) == [6]
 
 
 def test_an_outline_is_fitted_to_the_edges_that_count_and_not_to_a_stronger_one_beside_it():
@@ -1025,6 +1108,16 @@ def test_a_track_that_slid_onto_the_arm_stays_on_it_until_something_finds_the_ob
     on = np.array([False, True, True, False, False, False, False])
     # Frames 3-4 followed the arm by motion; 5 is a colour find (fresh evidence), 6 moved far.
     assert carried_on(on, masks, cues).tolist() == [False, True, True, True, True, False, False]
+    # A track on the forearm and the hand that shrinks to the hand: under half the IoU, but
+    # all of it lies on the arm frame's mask. Half of a mask off it is not on the arm.
+    forearm_and_hand = (np.abs(xx - 40) <= 20) & (np.abs(yy - 60) <= 4)
+    hand = (np.abs(xx - 54) <= 6) & (np.abs(yy - 60) <= 4)
+    half_off = (np.abs(xx - 62) <= 6) & (np.abs(yy - 60) <= 4)
+    assert _iou(hand, forearm_and_hand) < 0.5 and (half_off & forearm_and_hand).sum() < 0.5 * half_off.sum()
+    masks = np.stack([elsewhere, forearm_and_hand, hand, hand, half_off])
+    cues = ["prompt", "flow", "carried", "stay", "flow"]
+    on = np.array([False, True, False, False, False])
+    assert carried_on(on, masks, cues).tolist() == [False, True, True, True, False]
 
 
 def test_a_track_along_the_arm_does_not_supervise_the_object():

@@ -80,10 +80,10 @@ def filled_and_grown(polygon: np.ndarray, grow: float, shape: tuple[int, int]) -
     return cv2.dilate(one, disk(r)) > 0
 
 
-def holding_hand(kp2d: np.ndarray | None, t: int, mask: np.ndarray, share: float = 0.15) -> int | None:
+def holding_hand(kp2d: np.ndarray | None, t: int, mask: np.ndarray, share: float = 0.15, which: tuple[int, ...] = (0, 1)) -> int | None:
     """The visible hand (0 left, 1 right) whose fingers close over frame t's ``mask``: its
     region (``hand_regions``) covers at least ``share`` of the mask (the most covering
-    hand); None when none does, or without keypoints.
+    hand of ``which``); None when none does, or without keypoints.
 
     ``share`` 0.15 is set, not swept: fingers wrapped round a held object cover a sixth of
     a palm-sized one and more of a smaller one, while a hand merely beside an object
@@ -95,6 +95,6 @@ def holding_hand(kp2d: np.ndarray | None, t: int, mask: np.ndarray, share: float
     if kp2d is None:
         return None
     n = max(1, int(mask.sum()))
-    cover = [float((hand_regions(kp2d[t], mask.shape, which=(h,)) & mask).sum()) / n for h in (0, 1)]
-    h = int(np.argmax(cover))
+    cover = {h: float((hand_regions(kp2d[t], mask.shape, which=(h,)) & mask).sum()) / n for h in which}
+    h = max(cover, key=cover.get)
     return h if cover[h] >= share else None

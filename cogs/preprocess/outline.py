@@ -9,12 +9,14 @@ last.
 
 Alone, a followed outline drifts onto a neighbouring edge (the forearm beside a bottle,
 a crease in the trousers) and nothing in a frame says when: the edge there is as strong
-as the object's, often stronger. So it is only used between two prompts (``bridge``): a
-pass from each, towards the other, must meet, the two outlines lying on each other in
-some frame (``BRIDGE_AGREE``), and a hand must hold the result (``BRIDGE_HELD``): two
-passes that drift apart never meet, and two that drift onto the same edge (a white
-shirt's hem over black shorts) meet away from the hands. Then each frame takes the pass
-that reaches it before that meeting.
+as the object's, often stronger. So between two prompts (``bridge``) a pass from each,
+towards the other, must meet, the two outlines lying on each other in some frame
+(``BRIDGE_AGREE``), and a hand must hold the result (``BRIDGE_HELD``): two passes that
+drift apart never meet, and two that drift onto the same edge (a white shirt's hem over
+black shorts) meet away from the hands. Then each frame takes the pass that reaches it
+before that meeting. Beyond the first prompt and the last (``beyond``), a pass from a
+prompt a hand holds lasts only as long as that hand holds the outline, and the tracker
+ends it earlier where a find the colour cues trust lies elsewhere.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cogs.preprocess.hands import forearm_regions, hand_points, hand_regions, holding_hand
+from cogs.preprocess.segment import grown
 
 # How far an outline may move between two frames, as a share of its longer side: 0.3 of
 # the bottle's 26 px at 384 px is 8 px, which kept up with it being picked up, lifted
@@ -50,6 +53,8 @@ BRIDGE_HELD = 0.75
 # The confidence of a frame an outline gives: trusted (``ObjectConfig.min_confidence``)
 # but not a clear view (``tracking.CLEAR_CONFIDENCE``).
 OUTLINE_CONFIDENCE = 0.5
+# ... and a frame a lone pass gives (``beyond``), which only its hand checks: still trusted.
+LONE_CONFIDENCE = 0.3
 
 
 @dataclass
@@ -183,14 +188,16 @@ def fit(outline: Outline, rgb: np.ndarray, pose: tuple[float, float, float, floa
 
 
 def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray | None = None,
-           on_frame=None) -> tuple[Outline, dict[int, tuple[float, float, float, float]]] | None:
+           on_frame=None, hold: int | None = None) -> tuple[Outline, dict[int, tuple[float, float, float, float]]] | None:
     """Frame start's ``mask`` [H, W] bool followed by its outline's edges through the frames
     from start towards ``stop`` (inclusive; either direction) -> (its outline, {frame:
     pose}: ``Outline.mask`` draws each); None where the mask is too small to follow. With
     MediaPipe's keypoints ``kp2d`` [T, 33, 3], an outline a hand holds
-    (``hands.holding_hand``) is looked for where that hand took it, and the forearms'
-    edges do not count (``hands.forearm_regions``). ``on_frame()`` is called after each
-    frame."""
+    (``hands.holding_hand``) is looked for where that hand took it (the hand that held it
+    in the frame before, while it still does), and the forearms' edges do not count
+    (``hands.forearm_regions``). ``hold`` (0 left, 1 right; needs ``kp2d``): the pass ends
+    before the first frame whose outline that hand does not hold. ``on_frame()`` is called
+    after each frame."""
     outline = Outline.of(mask)
     if outline is None:
         return None
@@ -199,8 +206,12 @@ def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np
     direction = 1 if stop >= start else -1
     pose = (0.0, 0.0, 0.0, 1.0)
     poses, last = {}, mask
+    h = None
     for t in range(start + direction, stop + direction, direction):
-        h = None if kp2d is None else holding_hand(kp2d, t - direction, last)
+        # The hand that held it holds it still, or the one that does now: the other hand
+        # taking the cap off a bottle covers as much of it for a while, then leaves.
+        if kp2d is not None and (h is None or holding_hand(kp2d, t - direction, last, which=(h,)) is None):
+            h = holding_hand(kp2d, t - direction, last)
         if h is not None and hands[t - direction, h, 2] >= 0.5 and hands[t, h, 2] >= 0.5:
             shift = hands[t, h, :2] - hands[t - direction, h, :2]
             pose = (pose[0] + float(shift[0]), pose[1] + float(shift[1]), pose[2], pose[3])
@@ -208,11 +219,13 @@ def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np
         # arm: they count for nothing (the hand beyond the wrist still does).
         off = None if kp2d is None else forearm_regions(kp2d[t], (H, W)) & ~hand_regions(kp2d[t], (H, W))
         pose, _ = fit(outline, images[t], pose, off)
-        poses[t] = pose
-        if kp2d is not None:
-            last = outline.mask(pose, (H, W))
         if on_frame:
             on_frame()
+        if kp2d is not None:
+            last = outline.mask(pose, (H, W))
+            if hold is not None and holding_hand(kp2d, t, last, which=(hold,)) is None:
+                break
+        poses[t] = pose
     return outline, poses
 
 
@@ -251,3 +264,40 @@ def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b
     if in_hand < held:
         return None
     return shapes, switch, float(overlap[meet])
+
+
+def beyond(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray,
+           on_frame=None) -> dict[int, np.ndarray] | None:
+    """The frames from prompt ``start`` towards ``stop`` (inclusive), beyond the first or the
+    last prompt where no second prompt checks a pass, given by the prompt's outline
+    (``follow``) for as long as the hand that holds the prompt (``hands.holding_hand``)
+    holds the outline: {frame: [H, W] bool}, up to the first frame it does not. None where
+    no hand holds the prompt, or it is too small to follow. ``on_frame()`` is called after
+    each frame the pass fits.
+
+    A followed outline moves with its hand by construction, so that hand's hold says little
+    while it lasts; it ends the pass where the hand leaves the outline (on the bottle clip
+    at 384 px, the pass after the second box ends at frame 93: from 91 on the outline slid
+    off towards the other hand, which had twisted the cap off). The colour cues' own finds
+    check the rest (``tracking.lone_outline_frames``)."""
+    hand = holding_hand(kp2d, start, mask)
+    if hand is None:
+        return None
+    passed = follow(images, mask, start, stop, kp2d, on_frame, hold=hand)
+    if passed is None:
+        return None
+    outline, poses = passed
+    return {t: outline.mask(pose, images.shape[1:3]) for t, pose in poses.items()}
+
+
+def within_reach(find: np.ndarray, shape: np.ndarray, share: float = 0.5) -> bool:
+    """Whether at least ``share`` of ``find`` [H, W] bool lies on ``shape`` [H, W] bool grown
+    by one frame's search reach (``SEARCH_REACH`` of its longer side): a find at the same
+    object, though it takes in only a piece of it (a transparent bottle's base, the part
+    that shows the colours of its prompt) or the outline lies a few pixels off."""
+    n = int(find.sum())
+    if not n or not shape.any():
+        return False
+    ys, xs = np.nonzero(shape)
+    reach = max(MIN_REACH_PX, int(round(SEARCH_REACH * max(ys.max() - ys.min() + 1, xs.max() - xs.min() + 1))))
+    return int((find & grown(shape, reach)).sum()) >= share * n

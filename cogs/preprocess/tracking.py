@@ -63,7 +63,11 @@ floor a transparent bottle was lifted off, where the track stayed).
 Between two prompts, where a hand holds the object, the two prompts' outlines followed by
 the image's edges alone (``outline.bridge``) give the frames the colour cues saw less than
 clearly (a transparent bottle, whose colours are whatever lies behind it), at
-``OUTLINE_CONFIDENCE``; frames they lost stay lost.
+``OUTLINE_CONFIDENCE``; frames they lost stay lost. Beyond the first prompt and the last,
+the outline of a prompt a hand holds, followed while that hand holds it
+(``outline.beyond``), gives the frames whose finds the colour cues doubt themselves, up
+to where they lose the object or trust a find elsewhere (``lone_outline_frames``), at
+``LONE_CONFIDENCE``.
 
 Hands matter throughout: a handled object is always next to one, the fingers cover it, and
 a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
@@ -85,7 +89,7 @@ import numpy as np
 from cogs.errors import UserError
 from cogs.preprocess.background import StaticScene, colour_residual, person_free
 from cogs.preprocess.hands import HAND_LANDMARKS, filled_and_grown, forearm_regions, hand_points, hand_regions, holding_hand
-from cogs.preprocess.outline import OUTLINE_CONFIDENCE, bridge
+from cogs.preprocess.outline import LONE_CONFIDENCE, OUTLINE_CONFIDENCE, beyond, bridge, within_reach
 from cogs.preprocess.segment import (
     ColourModel,
     convex_hull,
@@ -153,6 +157,8 @@ UNCLEAR_CONFIDENCE = 0.1
 # supervision; nothing else changes.
 CLEAR_CONFIDENCE = 0.8
 CROSS_AGREE = 0.5
+# What the object branch trusts (``ObjectConfig.min_confidence``).
+TRUSTED_CONFIDENCE = 0.2
 # A mask more than this many times its prompt's area is not the object, whatever cue found it:
 # a rigid object's outline does not triple as it turns, and the colour search already
 # refuses such a find (its GrabCut leaked). A motion cue's track can grow that way, frame
@@ -536,19 +542,43 @@ def on_forearm(masks: np.ndarray, kp2d: np.ndarray, share: float = ON_FOREARM_SH
 
 def carried_on(arm: np.ndarray, masks: np.ndarray, cues: list[str], agree: float = 0.5) -> np.ndarray:
     """``arm`` [T] bool (``on_forearm``) grown along the track: a frame whose mask a motion
-    cue placed (``MOTION_CUES``) and that covers the same pixels as a neighbouring frame's
-    on the arm (IoU at least ``agree``) is on the arm too, whatever share of it lies on the
-    forearm now (the track that slid onto the other arm went on to its wrist and hand). A
-    colour find, the hand cue or a prompt is fresh evidence and stops it -> [T] bool. A track
-    runs one way from the arm, so one sweep each way finds it."""
+    cue placed (``MOTION_CUES``) and that lies on a neighbouring frame's mask on the arm (at
+    least ``agree`` of its pixels) is on the arm too, whatever share of it lies on the
+    forearm now: the track that slid onto the other arm went on to its wrist and hand, and
+    shrank there to the hand (at 960 px the bottle clip's mask on forearm and hand at 90
+    became the hand alone at 91, IoU 0.46 but 0.67 of it on 90's, and was trusted at
+    91-94; IoU at least ``agree`` implies this). A colour find, the hand cue or a prompt is
+    fresh evidence and stops it -> [T] bool. A track runs one way from the arm, so one
+    sweep each way finds it."""
     out = arm.copy()
     T = len(out)
     for order, step in ((range(1, T), -1), (range(T - 2, -1, -1), 1)):
         for t in order:
-            if (not out[t] and out[t + step] and cues[t] in MOTION_CUES and masks[t].any()
-                    and iou(masks[t], masks[t + step]) >= agree):
+            n = int(masks[t].sum())
+            if (not out[t] and out[t + step] and cues[t] in MOTION_CUES and n
+                    and int((masks[t] & masks[t + step]).sum()) >= agree * n):
                 out[t] = True
     return out
+
+
+def lone_outline_frames(k: int, shapes: dict[int, np.ndarray], masks: np.ndarray, conf: np.ndarray) -> list[int]:
+    """The frames a lone outline pass from prompt k (``outline.beyond``: {frame: [H, W]
+    bool}) gives, in the order it reached them. Nothing but its hand checks such a pass, so
+    it holds from the prompt on until the colour cues lose the object (hidden: it may come
+    back turned, or put down) or trust a find (``TRUSTED_CONFIDENCE``) beyond the outline's
+    reach (``outline.within_reach``): the pass has left the object, or the object the
+    hand. Of the frames before that, those whose find the colour cues doubt themselves
+    (``UNCLEAR_CONFIDENCE``: its surroundings look like it, it lies on the arm, shows the
+    room, or spread) take it; any other find is kept, seen in the frame's own colours (a
+    carried box turned to a striped face is better found moving at the hand than by an
+    outline whose fit the stripes pull aside)."""
+    took = []
+    for t in sorted(shapes, key=lambda t: abs(t - k)):
+        if conf[t] <= 0.0 or (conf[t] >= TRUSTED_CONFIDENCE and not within_reach(masks[t], shapes[t])):
+            break
+        if conf[t] <= UNCLEAR_CONFIDENCE:
+            took.append(t)
+    return took
 
 
 def foot_regions(kp: np.ndarray, shape: tuple[int, int], min_visibility: float = 0.5) -> np.ndarray:
@@ -1811,9 +1841,11 @@ def propagate_masks(
             like_person[k] = tracker.like_person[k]
     done = [len(frames)]
     # The bar counts every frame once, and each frame an outline is fitted to between two
-    # prompts (``bridge``) as one more: it shows their sum as a share of the frames.
+    # prompts (``bridge``) or beyond the first and the last (``beyond``) as one more: it
+    # shows their sum as a share of the frames.
     pairs = list(zip(frames[:-1], frames[1:]))
-    outline_total = 0 if kp2d is None else sum(2 * (b - a) for a, b in pairs if b - a >= 2)
+    ends = ((frames[0], 0), (frames[-1], T - 1))  # beyond the first prompt and the last
+    outline_total = 0 if kp2d is None else sum(2 * (b - a) for a, b in pairs if b - a >= 2) + sum(abs(e - k) for k, e in ends)
     outlined = [0]
 
     def report():
@@ -1865,6 +1897,16 @@ def propagate_masks(
             masks[t], conf[t], found[t], origin[t], way[t] = src[0][t], src[1][t], src[2][t], src[3], src[4][t]
         done[0] -= b - a + 1  # two passes cover these frames (and reach the prompts): the bar counts each once
         report()
+    # Beyond the first prompt and the last, the outline of one a hand holds, for as long as
+    # that hand holds it (``beyond``; applied at the end).
+    lone = []
+    for k, end in ends if kp2d is not None else ():
+        before = outlined[0]
+        shapes = beyond(images, prompts[k], k, end, kp2d, on_frame=outline_tick) if end != k else None
+        outlined[0] = before + abs(end - k)  # the frames a pass did not reach count as fitted
+        report()
+        if shapes:
+            lone.append((k, shapes))
     # Before the first prompt and after the last: that prompt's pass, as with one prompt.
     for k, direction in ((frames[-1], +1), (frames[0], -1)):
         tracker.use(k)
@@ -1911,6 +1953,18 @@ def propagate_masks(
     if len(grown):
         log.info("the object masks of frame(s) %s are over %gx their prompt's area: the track spread onto what lies next to "
                  "the object; they do not supervise it", grown.tolist(), MAX_AREA_GROWTH)
+    # Beyond the first and the last prompt, a lone outline gives the frames whose finds
+    # the colour cues doubt, all their doubts applied (``lone_outline_frames``); an outline
+    # on the arm is the arm.
+    for k, shapes in lone:
+        took = lone_outline_frames(k, shapes, masks, conf)
+        for t in took:
+            masks[t], conf[t], found[t], origin[t] = shapes[t], LONE_CONFIDENCE, "outline", k
+        arm = on_forearm(masks, kp2d)
+        conf[[t for t in took if arm[t]]] = UNCLEAR_CONFIDENCE
+        if took:
+            log.info("prompt %d: its outline, followed by the image's edges while the hand holding it holds it, gives %d frame(s) "
+                     "%s it (%d-%d)", k, len(took), "before" if took[0] < k else "after", min(took), max(took))
     log.debug("object cues per frame: %s", found)
     if cues is not None:
         cues[:] = found
