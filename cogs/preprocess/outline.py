@@ -21,6 +21,7 @@ ends it earlier where a find the colour cues trust lies elsewhere.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -266,14 +267,31 @@ def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b
     return shapes, switch, float(overlap[meet])
 
 
+class Drawn(Mapping):
+    """{frame: [H, W] bool} of a followed outline, each mask drawn from its pose when asked:
+    a pass over a long clip at full size keeps its poses, not its masks."""
+
+    def __init__(self, outline: Outline, poses: dict[int, tuple[float, float, float, float]], shape: tuple[int, int]):
+        self.outline, self.poses, self.shape = outline, poses, shape
+
+    def __getitem__(self, t: int) -> np.ndarray:
+        return self.outline.mask(self.poses[t], self.shape)
+
+    def __iter__(self):
+        return iter(self.poses)
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+
 def beyond(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray,
-           on_frame=None) -> dict[int, np.ndarray] | None:
+           on_frame=None) -> Drawn | None:
     """The frames from prompt ``start`` towards ``stop`` (inclusive), beyond the first or the
     last prompt where no second prompt checks a pass, given by the prompt's outline
     (``follow``) for as long as the hand that holds the prompt (``hands.holding_hand``)
-    holds the outline: {frame: [H, W] bool}, up to the first frame it does not. None where
-    no hand holds the prompt, or it is too small to follow. ``on_frame()`` is called after
-    each frame the pass fits.
+    holds the outline: {frame: [H, W] bool} (``Drawn``), up to the first frame it does not.
+    None where no hand holds the prompt, or it is too small to follow. ``on_frame()`` is
+    called after each frame the pass fits.
 
     A followed outline moves with its hand by construction, so that hand's hold says little
     while it lasts; it ends the pass where the hand leaves the outline (on the bottle clip
@@ -284,10 +302,7 @@ def beyond(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np
     if hand is None:
         return None
     passed = follow(images, mask, start, stop, kp2d, on_frame, hold=hand)
-    if passed is None:
-        return None
-    outline, poses = passed
-    return {t: outline.mask(pose, images.shape[1:3]) for t, pose in poses.items()}
+    return None if passed is None else Drawn(*passed, images.shape[1:3])
 
 
 def within_reach(find: np.ndarray, shape: np.ndarray, share: float = 0.5) -> bool:

@@ -1956,15 +1956,18 @@ def propagate_masks(
     # Beyond the first and the last prompt, a lone outline gives the frames whose finds
     # the colour cues doubt, all their doubts applied (``lone_outline_frames``); an outline
     # on the arm is the arm.
+    took = []
     for k, shapes in lone:
-        took = lone_outline_frames(k, shapes, masks, conf)
-        for t in took:
+        given = lone_outline_frames(k, shapes, masks, conf)
+        for t in given:
             masks[t], conf[t], found[t], origin[t] = shapes[t], LONE_CONFIDENCE, "outline", k
+        took += given
+        if given:
+            log.info("prompt %d: its outline, followed by the image's edges while the hand holding it holds it, gives %d frame(s) "
+                     "%s it (%d-%d)", k, len(given), "before" if given[0] < k else "after", min(given), max(given))
+    if took:
         arm = on_forearm(masks, kp2d)
         conf[[t for t in took if arm[t]]] = UNCLEAR_CONFIDENCE
-        if took:
-            log.info("prompt %d: its outline, followed by the image's edges while the hand holding it holds it, gives %d frame(s) "
-                     "%s it (%d-%d)", k, len(took), "before" if took[0] < k else "after", min(took), max(took))
     log.debug("object cues per frame: %s", found)
     if cues is not None:
         cues[:] = found
