@@ -58,8 +58,11 @@ class Preprocess:
     frame --object-box-frame. Repeat it as --object-box FRAME X0 Y0 X1 Y1, one per frame,
     to prompt several frames (e.g. where the tracker lost the object): the tracker restarts
     from each box, and between two boxes an object held in a hand is also followed by its
-    outline's edges (a transparent bottle); beyond the first box and the last, a box a hand
-    holds is followed so while that hand holds it, where the colour cues doubt their finds."""
+    outline's edges (a transparent bottle). Beyond the first box and the last, and between
+    two whose outlines do not meet, a box's outline is followed alone: while a hand that
+    holds the box holds it, where the colour cues doubt their finds; and as far as it
+    returns to the box when followed back, where they lost an object coloured like the
+    person in front of the person (a white racket before a white shirt)."""
 
     object_box_frame: int | None = None
     """Index (among the kept frames) of the frame the single box X0 Y0 X1 Y1 is drawn on

@@ -14,9 +14,11 @@ towards the other, must meet, the two outlines lying on each other in some frame
 (``BRIDGE_AGREE``), and a hand must hold the result (``BRIDGE_HELD``): two passes that
 drift apart never meet, and two that drift onto the same edge (a white shirt's hem over
 black shorts) meet away from the hands. Then each frame takes the pass that reaches it
-before that meeting. Beyond the first prompt and the last (``beyond``), a pass from a
-prompt a hand holds lasts only as long as that hand holds the outline, and the tracker
-ends it earlier where a find the colour cues trust lies elsewhere.
+before that meeting. Beyond the first prompt and the last, and between two prompts whose
+passes do not meet, a pass from one prompt alone (``lone_pass``) holds up to the last frame
+whose outline, followed back, lands on the prompt it came from (``returns``: a pass that
+drifted onto a neighbouring edge stays on that edge on the way back); the tracker ends it
+earlier where a find the colour cues trust lies elsewhere.
 """
 
 from __future__ import annotations
@@ -54,8 +56,17 @@ BRIDGE_HELD = 0.75
 # The confidence of a frame an outline gives: trusted (``ObjectConfig.min_confidence``)
 # but not a clear view (``tracking.CLEAR_CONFIDENCE``).
 OUTLINE_CONFIDENCE = 0.5
-# ... and a frame a lone pass gives (``beyond``), which only its hand checks: still trusted.
+# ... and a frame a lone pass gives (``lone_pass``), which only its own way back checks:
+# still trusted.
 LONE_CONFIDENCE = 0.3
+# A frame's outline followed back returns to its prompt where it lands with its centre
+# within this share of the prompt's longer side of the prompt's centre. Measured at 384 and
+# 640 px, each frame of a pass followed back: on the object the centres landed 0.00-0.16
+# apart (the tennis racket at frames 1-10, the bottle at 1-17), where the pass had drifted
+# 0.25-0.61 (the racket's outline on the forearm from frame 11 at 384 px and 10 at 640, the
+# bottle's on the floor at 18). The outlines' IoU told them apart less well: 0.45-0.59 on a
+# bottle 26 px tall a pixel or two off, 0.57 on the racket turned edge-on.
+RETURN_REACH = 0.2
 
 
 @dataclass
@@ -189,29 +200,34 @@ def fit(outline: Outline, rgb: np.ndarray, pose: tuple[float, float, float, floa
 
 
 def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray | None = None,
-           on_frame=None, hold: int | None = None) -> tuple[Outline, dict[int, tuple[float, float, float, float]]] | None:
+           on_frame=None, carry: bool = True) -> tuple[Outline, dict[int, tuple[float, float, float, float]]] | None:
     """Frame start's ``mask`` [H, W] bool followed by its outline's edges through the frames
     from start towards ``stop`` (inclusive; either direction) -> (its outline, {frame:
     pose}: ``Outline.mask`` draws each); None where the mask is too small to follow. With
     MediaPipe's keypoints ``kp2d`` [T, 33, 3], an outline a hand holds
     (``hands.holding_hand``) is looked for where that hand took it (the hand that held it
     in the frame before, while it still does), and the forearms' edges do not count
-    (``hands.forearm_regions``). ``hold`` (0 left, 1 right; needs ``kp2d``): the pass ends
-    before the first frame whose outline that hand does not hold. ``on_frame()`` is called
-    after each frame."""
+    (``hands.forearm_regions``); ``carry`` False: the hands' motion is not used, the edges
+    alone move the outline. ``on_frame()`` is called after each frame."""
     outline = Outline.of(mask)
     if outline is None:
         return None
+    return outline, dict(_passing(images, outline, mask, start, stop, kp2d, on_frame, carry))
+
+
+def _passing(images: np.ndarray, outline: Outline, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray | None,
+             on_frame=None, carry: bool = True):
+    """``follow``'s frames one at a time: yields (frame, pose)."""
     H, W = images.shape[1:3]
     hands = hand_points(kp2d)
     direction = 1 if stop >= start else -1
     pose = (0.0, 0.0, 0.0, 1.0)
-    poses, last = {}, mask
+    last = mask
     h = None
     for t in range(start + direction, stop + direction, direction):
         # The hand that held it holds it still, or the one that does now: the other hand
         # taking the cap off a bottle covers as much of it for a while, then leaves.
-        if kp2d is not None and (h is None or holding_hand(kp2d, t - direction, last, which=(h,)) is None):
+        if carry and kp2d is not None and (h is None or holding_hand(kp2d, t - direction, last, which=(h,)) is None):
             h = holding_hand(kp2d, t - direction, last)
         if h is not None and hands[t - direction, h, 2] >= 0.5 and hands[t, h, 2] >= 0.5:
             shift = hands[t, h, :2] - hands[t - direction, h, :2]
@@ -222,12 +238,9 @@ def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np
         pose, _ = fit(outline, images[t], pose, off)
         if on_frame:
             on_frame()
-        if kp2d is not None:
+        if carry and kp2d is not None:
             last = outline.mask(pose, (H, W))
-            if hold is not None and holding_hand(kp2d, t, last, which=(hold,)) is None:
-                break
-        poses[t] = pose
-    return outline, poses
+        yield t, pose
 
 
 def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b: int, kp2d: np.ndarray,
@@ -284,25 +297,97 @@ class Drawn(Mapping):
         return len(self.poses)
 
 
-def beyond(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray,
-           on_frame=None) -> Drawn | None:
-    """The frames from prompt ``start`` towards ``stop`` (inclusive), beyond the first or the
-    last prompt where no second prompt checks a pass, given by the prompt's outline
-    (``follow``) for as long as the hand that holds the prompt (``hands.holding_hand``)
-    holds the outline: {frame: [H, W] bool} (``Drawn``), up to the first frame it does not.
-    None where no hand holds the prompt, or it is too small to follow. ``on_frame()`` is
+def returns(images: np.ndarray, outline: Outline, pose: tuple[float, float, float, float], t: int, start: int,
+            prompt: np.ndarray, kp2d: np.ndarray | None, reach: float = RETURN_REACH) -> bool:
+    """Whether frame t's ``outline`` under ``pose``, followed back to frame ``start``
+    (``follow``), lands on ``prompt`` [H, W] bool there: its centre within ``reach`` of the
+    prompt's longer side of the prompt's centre. A pass that drifted onto a neighbouring
+    edge stays on that edge on the way back (the forward-backward check of Kalal, Mikolajczyk
+    and Matas, 2010)."""
+    shape = images.shape[1:3]
+    back = follow(images, outline.mask(pose, shape), t, start, kp2d, carry=False)
+    if back is None:
+        return False
+    landed = back[0].mask(back[1][start], shape)
+    if not landed.any():
+        return False
+    (ly, lx), (ys, xs) = (a.mean() for a in np.nonzero(landed)), np.nonzero(prompt)
+    size = max(np.ptp(ys), np.ptp(xs)) + 1
+    return float(np.hypot(ly - ys.mean(), lx - xs.mean())) <= reach * size
+
+
+class Lone(Drawn):
+    """A lone pass (``lone_pass``): {frame: [H, W] bool} as ``Drawn``, with the frames the
+    hand that holds the prompt holds (``held``) and those that return to the prompt
+    (``returning``), each a run from the prompt on."""
+
+    def __init__(self, outline: Outline, poses: dict[int, tuple[float, float, float, float]], shape: tuple[int, int],
+                 held: list[int], returning: list[int]):
+        super().__init__(outline, poses, shape)
+        self.held, self.returning = held, returning
+
+
+def lone_pass(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray | None,
+              on_frame=None, check_back: bool = True) -> Lone | None:
+    """The frames from prompt ``start`` towards ``stop`` (inclusive) given by the prompt's
+    outline alone (``follow``), where no second prompt's pass meets it, and what checks
+    each: the frames up to the first whose outline the hand that holds the prompt
+    (``hands.holding_hand``, with MediaPipe's keypoints ``kp2d`` [T, 33, 3]) does not
+    hold, and those up to the first whose outline does not return to the prompt
+    (``returns``; none without ``check_back``). None where the prompt is too small to
+    follow, or where no hand holds it and the way back is not checked. ``on_frame()`` is
     called after each frame the pass fits.
 
     A followed outline moves with its hand by construction, so that hand's hold says little
-    while it lasts; it ends the pass where the hand leaves the outline (on the bottle clip
-    at 384 px, the pass after the second box ends at frame 93: from 91 on the outline slid
-    off towards the other hand, which had twisted the cap off). The colour cues' own finds
-    check the rest (``tracking.lone_outline_frames``)."""
-    hand = holding_hand(kp2d, start, mask)
-    if hand is None:
+    while it lasts; it ends where the hand leaves the outline (on the bottle clip at 384 px,
+    the pass after the second box: from 91 on the outline slid off towards the other hand,
+    which had twisted the cap off). Following the outline back, by the edges alone, says
+    where it left the object (on the tennis clip the racket's outline returns from frames
+    1-8 at 384 px; from 9 on it lies on the forearm); but an outline that stalled on the
+    background where the object was returns as well. The tracker takes each check where
+    it holds (``tracking.lone_outline_frames``).
+
+    The way back is checked at frames ever further out (each about 1.4x as far as the
+    last), then by bisection between the last that returns and the first that does not: a
+    pass that holds for n frames costs a few n fits, not n²/2. The pass is followed no
+    further than both checks hold."""
+    outline = Outline.of(mask)
+    hand = None if kp2d is None else holding_hand(kp2d, start, mask)
+    if outline is None or (hand is None and not check_back):
         return None
-    passed = follow(images, mask, start, stop, kp2d, on_frame, hold=hand)
-    return None if passed is None else Drawn(*passed, images.shape[1:3])
+    shape = images.shape[1:3]
+
+    def back(i: int) -> bool:
+        return returns(images, outline, poses[order[i]], order[i], start, mask, kp2d)
+
+    poses, order = {}, []
+    n_held, holding = 0, hand is not None
+    # Indices into order: the last that returns, the first that does not, the next checked.
+    ok, fail, check = -1, (None if check_back else 0), 0
+    for t, pose in _passing(images, outline, mask, start, stop, kp2d, on_frame):
+        poses[t] = pose
+        order.append(t)
+        i = len(order) - 1
+        if holding:
+            holding = holding_hand(kp2d, t, outline.mask(pose, shape), which=(hand,)) is not None
+            n_held += holding
+        if fail is None and i == check:
+            if back(i):
+                ok, check = i, max(i + 1, int(1.4 * (i + 1)))
+            else:
+                fail = i
+        if fail is not None and not holding:
+            break
+    if fail is None and ok < len(order) - 1:  # the pass reached ``stop`` between two checks
+        if back(len(order) - 1):
+            ok = len(order) - 1
+        else:
+            fail = len(order) - 1
+    while fail is not None and fail - ok > 1:
+        mid = (ok + fail) // 2
+        ok, fail = (mid, fail) if back(mid) else (ok, mid)
+    reached = order[: max(n_held, ok + 1)]
+    return Lone(outline, {t: poses[t] for t in reached}, shape, order[:n_held], order[: ok + 1])
 
 
 def within_reach(find: np.ndarray, shape: np.ndarray, share: float = 0.5) -> bool:

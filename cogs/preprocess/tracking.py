@@ -64,10 +64,11 @@ Between two prompts, where a hand holds the object, the two prompts' outlines fo
 the image's edges alone (``outline.bridge``) give the frames the colour cues saw less than
 clearly (a transparent bottle, whose colours are whatever lies behind it), at
 ``OUTLINE_CONFIDENCE``; frames they lost stay lost. Beyond the first prompt and the last,
-the outline of a prompt a hand holds, followed while that hand holds it
-(``outline.beyond``), gives the frames whose finds the colour cues doubt themselves, up
-to where they lose the object or trust a find elsewhere (``lone_outline_frames``), at
-``LONE_CONFIDENCE``.
+and between two prompts whose outlines do not meet, each prompt's outline followed alone
+for as long as it returns to the prompt when followed back (``outline.lone_pass``) gives
+the frames the colour cues lost or doubt, up to where they trust a find elsewhere
+(``lone_outline_frames``), at ``LONE_CONFIDENCE``: a racket they cannot tell from the
+white shirt in front of which it is held.
 
 Hands matter throughout: a handled object is always next to one, the fingers cover it, and
 a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
@@ -89,7 +90,7 @@ import numpy as np
 from cogs.errors import UserError
 from cogs.preprocess.background import StaticScene, colour_residual, person_free
 from cogs.preprocess.hands import HAND_LANDMARKS, filled_and_grown, forearm_regions, hand_points, hand_regions, holding_hand
-from cogs.preprocess.outline import LONE_CONFIDENCE, OUTLINE_CONFIDENCE, beyond, bridge, within_reach
+from cogs.preprocess.outline import LONE_CONFIDENCE, OUTLINE_CONFIDENCE, bridge, lone_pass, within_reach
 from cogs.preprocess.segment import (
     ColourModel,
     convex_hull,
@@ -561,22 +562,35 @@ def carried_on(arm: np.ndarray, masks: np.ndarray, cues: list[str], agree: float
     return out
 
 
-def lone_outline_frames(k: int, shapes: dict[int, np.ndarray], masks: np.ndarray, conf: np.ndarray) -> list[int]:
-    """The frames a lone outline pass from prompt k (``outline.beyond``: {frame: [H, W]
-    bool}) gives, in the order it reached them. Nothing but its hand checks such a pass, so
-    it holds from the prompt on until the colour cues lose the object (hidden: it may come
-    back turned, or put down) or trust a find (``TRUSTED_CONFIDENCE``) beyond the outline's
-    reach (``outline.within_reach``): the pass has left the object, or the object the
-    hand. Of the frames before that, those whose find the colour cues doubt themselves
-    (``UNCLEAR_CONFIDENCE``: its surroundings look like it, it lies on the arm, shows the
-    room, or spread) take it; any other find is kept, seen in the frame's own colours (a
-    carried box turned to a striped face is better found moving at the hand than by an
-    outline whose fit the stripes pull aside)."""
+def lone_outline_frames(k: int, shapes: dict[int, np.ndarray], masks: np.ndarray, conf: np.ndarray, held, returning=(),
+                        unseen=lambda t: False) -> list[int]:
+    """The frames a lone outline pass from prompt k (``outline.lone_pass``: {frame: [H, W]
+    bool}) gives, in the order it reached them: ``held``, the frames whose outline the hand
+    that holds the prompt holds, and ``returning``, those whose outline returns to the
+    prompt followed back, each a run from the prompt on.
+
+    The pass holds until the colour cues trust a find (``TRUSTED_CONFIDENCE``) beyond the
+    outline's reach (``outline.within_reach``): it has left the object, or the object has
+    moved off where it went. Of the frames before that:
+    - those whose find the colour cues doubt themselves (``UNCLEAR_CONFIDENCE``: its
+      surroundings look like it, it lies on the arm, shows the room, or spread) take it
+      where its hand holds it. Any other find is kept, seen in the frame's own colours (a
+      carried box turned to a striped face is better found moving at the hand than by an
+      outline whose fit the stripes pull aside).
+    - those the colour cues lost where they do not look for the object (``unseen(t)``: one
+      coloured like the person, its outline on the person) take it where it returns. A
+      frame they lost elsewhere ends the pass: hidden, the object may come back turned or
+      be put down, while an outline that stalled where it was still returns."""
+    held, returning = set(held), set(returning)
     took = []
     for t in sorted(shapes, key=lambda t: abs(t - k)):
-        if conf[t] <= 0.0 or (conf[t] >= TRUSTED_CONFIDENCE and not within_reach(masks[t], shapes[t])):
+        if conf[t] >= TRUSTED_CONFIDENCE and not within_reach(masks[t], shapes[t]):
             break
-        if conf[t] <= UNCLEAR_CONFIDENCE:
+        if conf[t] <= 0.0:
+            if t not in returning or not unseen(t):
+                break
+            took.append(t)
+        elif conf[t] <= UNCLEAR_CONFIDENCE and t in held:
             took.append(t)
     return took
 
@@ -1841,11 +1855,13 @@ def propagate_masks(
             like_person[k] = tracker.like_person[k]
     done = [len(frames)]
     # The bar counts every frame once, and each frame an outline is fitted to between two
-    # prompts (``bridge``) or beyond the first and the last (``beyond``) as one more: it
-    # shows their sum as a share of the frames.
+    # prompts (``bridge``, and where it fails ``lone_pass`` from either) or beyond the first
+    # and the last (``lone_pass``) as one more: it shows their sum as a share of the frames.
+    # A lone pass counts the frames it did not reach as fitted; following its frames back
+    # (``outline.returns``) is not counted.
     pairs = list(zip(frames[:-1], frames[1:]))
     ends = ((frames[0], 0), (frames[-1], T - 1))  # beyond the first prompt and the last
-    outline_total = 0 if kp2d is None else sum(2 * (b - a) for a, b in pairs if b - a >= 2) + sum(abs(e - k) for k, e in ends)
+    outline_total = 0 if kp2d is None else sum(4 * (b - a) - 2 for a, b in pairs if b - a >= 2) + sum(abs(e - k) for k, e in ends)
     outlined = [0]
 
     def report():
@@ -1875,11 +1891,28 @@ def propagate_masks(
     # frame; the frames between take one or the other (``combine_passes``). And the two
     # prompts' outlines, followed by their edges, where they meet in a hand (``bridge``).
     bridges = []
+    lone = []  # (prompt, its lone pass): applied at the end
+
+    def lone_from(k: int, stop: int) -> None:
+        # The way back is checked only where it can give frames: an object coloured like
+        # the person, which the colour cues do not look for on the person.
+        before = outlined[0]
+        like = tracker.coloured_like_person(k, 1 if stop > k else -1)
+        shapes = lone_pass(images, prompts[k], k, stop, kp2d, on_frame=outline_tick, check_back=like) if stop != k else None
+        outlined[0] = before + abs(stop - k)  # the frames a pass did not reach count as fitted
+        report()
+        if shapes:
+            lone.append((k, shapes))
+
     for a, b in pairs:
-        if kp2d is not None:
+        if kp2d is not None and b - a >= 2:
             bridged = bridge(images, prompts[a], a, prompts[b], b, kp2d, on_frame=outline_tick)
             if bridged is not None:
                 bridges.append((a, b, *bridged))
+                outlined[0] += 2 * (b - a - 1)  # no lone passes between them
+            else:  # each prompt's outline alone, towards the other
+                lone_from(a, b - 1)
+                lone_from(b, a + 1)
         passes = []
         for k, direction, stop in ((a, +1, b + 1), (b, -1, a - 1)):
             m, c, cu, w = np.zeros((T, H, W), bool), np.zeros(T), [""] * T, np.full(T, direction)
@@ -1897,16 +1930,9 @@ def propagate_masks(
             masks[t], conf[t], found[t], origin[t], way[t] = src[0][t], src[1][t], src[2][t], src[3], src[4][t]
         done[0] -= b - a + 1  # two passes cover these frames (and reach the prompts): the bar counts each once
         report()
-    # Beyond the first prompt and the last, the outline of one a hand holds, for as long as
-    # that hand holds it (``beyond``; applied at the end).
-    lone = []
+    # Beyond the first prompt and the last, each one's outline alone (``lone_pass``).
     for k, end in ends if kp2d is not None else ():
-        before = outlined[0]
-        shapes = beyond(images, prompts[k], k, end, kp2d, on_frame=outline_tick) if end != k else None
-        outlined[0] = before + abs(end - k)  # the frames a pass did not reach count as fitted
-        report()
-        if shapes:
-            lone.append((k, shapes))
+        lone_from(k, end)
     # Before the first prompt and after the last: that prompt's pass, as with one prompt.
     for k, direction in ((frames[-1], +1), (frames[0], -1)):
         tracker.use(k)
@@ -1920,9 +1946,12 @@ def propagate_masks(
     for a, b, shapes, switch, agree in bridges:
         # A frame the colour cues saw clearly keeps its mask, and one they lost stays lost
         # (hidden, for all a followed outline can tell); the others take the outline
-        # where a hand holds it.
-        took = [t for t, shape in shapes.items()
-                if 0.0 < conf[t] < CLEAR_CONFIDENCE and holding_hand(kp2d, t, shape) is not None]
+        # where a hand holds it, or holds it on the frames either side: one frame's hand
+        # points off the fingers is the pose model's jitter, not a hand letting go and
+        # taking hold again (the bottle clip's frame 14 at 384 px: the outline on the
+        # bottle, the hand's region beside it covering 0.07 of it, 0.15 and 0.57 either side).
+        held = {t: holding_hand(kp2d, t, shape) is not None for t, shape in shapes.items()}
+        took = [t for t in shapes if 0.0 < conf[t] < CLEAR_CONFIDENCE and (held[t] or (held.get(t - 1) and held.get(t + 1)))]
         for t in took:
             masks[t], conf[t], found[t], origin[t] = shapes[t], OUTLINE_CONFIDENCE, "outline", a if t <= switch else b
         log.info("prompts %d and %d: their outlines, followed by the image's edges, meet at frame %d (IoU %.2f) in a hand; "
@@ -1953,18 +1982,23 @@ def propagate_masks(
     if len(grown):
         log.info("the object masks of frame(s) %s are over %gx their prompt's area: the track spread onto what lies next to "
                  "the object; they do not supervise it", grown.tolist(), MAX_AREA_GROWTH)
-    # Beyond the first and the last prompt, a lone outline gives the frames whose finds
-    # the colour cues doubt, all their doubts applied (``lone_outline_frames``); an outline
-    # on the arm is the arm.
-    took = []
+    # A lone outline gives the frames the colour cues lost or doubt, all their doubts
+    # applied (``lone_outline_frames``); of two passes giving a frame (from the prompts
+    # either side), the one from the nearer prompt. An outline on the arm is the arm.
+    took = {}
     for k, shapes in lone:
-        given = lone_outline_frames(k, shapes, masks, conf)
+        # The colour cues do not look for an object coloured like the person on the person
+        # (a pass for another object has no frames that return).
+        given = lone_outline_frames(k, shapes, masks, conf, shapes.held, shapes.returning, lambda t: tracker.on_person(t, shapes[t]))
         for t in given:
-            masks[t], conf[t], found[t], origin[t] = shapes[t], LONE_CONFIDENCE, "outline", k
-        took += given
+            if t not in took or abs(t - k) < abs(t - took[t][0]):
+                took[t] = (k, shapes)
         if given:
-            log.info("prompt %d: its outline, followed by the image's edges while the hand holding it holds it, gives %d frame(s) "
-                     "%s it (%d-%d)", k, len(given), "before" if given[0] < k else "after", min(given), max(given))
+            log.info("prompt %d: its outline, followed alone by the image's edges (checked by the hand holding it, or by "
+                     "following it back), gives %d frame(s) %s it (%d-%d)",
+                     k, len(given), "before" if given[0] < k else "after", min(given), max(given))
+    for t, (k, shapes) in took.items():
+        masks[t], conf[t], found[t], origin[t] = shapes[t], LONE_CONFIDENCE, "outline", k
     if took:
         arm = on_forearm(masks, kp2d)
         conf[[t for t in took if arm[t]]] = UNCLEAR_CONFIDENCE
