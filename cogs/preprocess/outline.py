@@ -15,10 +15,11 @@ towards the other, must meet, the two outlines lying on each other in some frame
 drift apart never meet, and two that drift onto the same edge (a white shirt's hem over
 black shorts) meet away from the hands. Then each frame takes the pass that reaches it
 before that meeting. Beyond the first prompt and the last, and between two prompts whose
-passes do not meet, a pass from one prompt alone (``lone_pass``) holds up to the last frame
-whose outline, followed back, lands on the prompt it came from (``returns``: a pass that
-drifted onto a neighbouring edge stays on that edge on the way back); the tracker ends it
-earlier where a find the colour cues trust lies elsewhere.
+passes do not meet, a pass from one prompt alone (``lone_pass``) is checked by the hand
+that holds the prompt, while it holds the outline, and by following each frame's outline
+back: it must land on the prompt it came from (``returns``: a pass that drifted onto a
+neighbouring edge stays on that edge on the way back); the tracker ends it earlier where a
+find the colour cues trust lies elsewhere.
 """
 
 from __future__ import annotations
@@ -56,16 +57,17 @@ BRIDGE_HELD = 0.75
 # The confidence of a frame an outline gives: trusted (``ObjectConfig.min_confidence``)
 # but not a clear view (``tracking.CLEAR_CONFIDENCE``).
 OUTLINE_CONFIDENCE = 0.5
-# ... and a frame a lone pass gives (``lone_pass``), which only its own way back checks:
-# still trusted.
+# ... and a frame a lone pass gives (``lone_pass``), which only the hand holding its prompt
+# or its own way back checks: still trusted.
 LONE_CONFIDENCE = 0.3
 # A frame's outline followed back returns to its prompt where it lands with its centre
 # within this share of the prompt's longer side of the prompt's centre. Measured at 384 and
-# 640 px, each frame of a pass followed back: on the object the centres landed 0.00-0.16
-# apart (the tennis racket at frames 1-10, the bottle at 1-17), where the pass had drifted
-# 0.25-0.61 (the racket's outline on the forearm from frame 11 at 384 px and 10 at 640, the
-# bottle's on the floor at 18). The outlines' IoU told them apart less well: 0.45-0.59 on a
-# bottle 26 px tall a pixel or two off, 0.57 on the racket turned edge-on.
+# 640 px, each frame of a pass followed back by the edges alone: on the object the centres
+# landed 0.00-0.19 apart (the tennis racket at frames 1-8, the bottle at 1-17), where the
+# pass had left it 0.26-2.4 (the racket's outline on the forearm from frame 9, the
+# bottle's from 18). The outlines' IoU told them apart less well: 0.46 on a bottle 26 px
+# tall a pixel or two off, 0.32 off the racket
+# (docs/experiments/2026-12-05-f-an-outline-that-returns.md).
 RETURN_REACH = 0.2
 
 

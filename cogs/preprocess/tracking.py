@@ -65,10 +65,11 @@ the image's edges alone (``outline.bridge``) give the frames the colour cues saw
 clearly (a transparent bottle, whose colours are whatever lies behind it), at
 ``OUTLINE_CONFIDENCE``; frames they lost stay lost. Beyond the first prompt and the last,
 and between two prompts whose outlines do not meet, each prompt's outline followed alone
-for as long as it returns to the prompt when followed back (``outline.lone_pass``) gives
-the frames the colour cues lost or doubt, up to where they trust a find elsewhere
-(``lone_outline_frames``), at ``LONE_CONFIDENCE``: a racket they cannot tell from the
-white shirt in front of which it is held.
+(``outline.lone_pass``) gives, up to where the colour cues trust a find elsewhere
+(``lone_outline_frames``), at ``LONE_CONFIDENCE``: the frames whose finds they doubt, while
+the hand holding the prompt holds the outline; and the frames they lost an object coloured
+like the person on the person (a white racket in front of a white shirt), while the
+outline returns to the prompt when followed back.
 
 Hands matter throughout: a handled object is always next to one, the fingers cover it, and
 a hand looks like a skin-coloured object. Hands come from MediaPipe's pose keypoints
