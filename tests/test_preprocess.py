@@ -972,6 +972,11 @@ def test_a_transparent_object_held_between_two_prompts_is_followed_by_its_outlin
         masks, conf = O.propagate_masks(images, [gt[0], gt[-1]], [0, T - 1], kp2d=off, cues=cues)
         took = [t for t in jitter if cues[t] == "outline" and _iou(masks[t], gt[t]) > 0.75]
         assert took == (list(jitter) if len(jitter) == 1 else []), (jitter, cues)
+    # The progress bar, which counts the frames between two boxes twice (a pass from each)
+    # and the outlines' fits, never goes back and ends on the last frame.
+    bar = []
+    O.propagate_masks(images, [gt[0], gt[3]], [0, 3], kp2d=kp, on_frame=bar.append)
+    assert bar[-1] == T and all(b >= a for a, b in zip(bar, bar[1:])), bar
     # The same bottle with no hand at it: no outline is taken, and colour alone misses it.
     images, gt, kp = _transparent_bottle_clip(hand_at_it=False)
     masks, conf = O.propagate_masks(images, [gt[0], gt[-1]], [0, T - 1], kp2d=kp, cues=cues)

@@ -1855,19 +1855,21 @@ def propagate_masks(
         if like_person is not None:
             like_person[k] = tracker.like_person[k]
     done = [len(frames)]
-    # The bar counts every frame once, and each frame an outline is fitted to between two
-    # prompts (``bridge``, and where it fails ``lone_pass`` from either) or beyond the first
-    # and the last (``lone_pass``) as one more: it shows their sum as a share of the frames.
-    # A lone pass counts the frames it did not reach as fitted; following its frames back
-    # (``outline.returns``) is not counted.
+    # The bar counts every frame a pass tracks (the frames between two prompts twice, once
+    # from each, and the prompts they reach), and each frame an outline is fitted to between
+    # two prompts (``bridge``, and where it fails ``lone_pass`` from either) or beyond the
+    # first and the last (``lone_pass``): it shows their sum as a share of the frames, and
+    # never goes back. A lone pass counts the frames it did not reach as fitted; following
+    # its frames back (``outline.returns``) is not counted.
     pairs = list(zip(frames[:-1], frames[1:]))
     ends = ((frames[0], 0), (frames[-1], T - 1))  # beyond the first prompt and the last
+    twice = sum(b - a + 1 for a, b in pairs)
     outline_total = 0 if kp2d is None else sum(4 * (b - a) - 2 for a, b in pairs if b - a >= 2) + sum(abs(e - k) for k, e in ends)
     outlined = [0]
 
     def report():
         if on_frame:
-            on_frame(min(int((done[0] + outlined[0]) * T / (T + outline_total)), T))
+            on_frame(min(int((done[0] + outlined[0]) * T / (T + twice + outline_total)), T))
 
     def tick():
         done[0] += 1
@@ -1929,8 +1931,6 @@ def propagate_masks(
         for t in range(a + 1, b):
             src = (mb, cb, cub, b, wb) if second[t - a] else (ma, ca, cua, a, wa)
             masks[t], conf[t], found[t], origin[t], way[t] = src[0][t], src[1][t], src[2][t], src[3], src[4][t]
-        done[0] -= b - a + 1  # two passes cover these frames (and reach the prompts): the bar counts each once
-        report()
     # Beyond the first prompt and the last, each one's outline alone (``lone_pass``).
     for k, end in ends if kp2d is not None else ():
         lone_from(k, end)
