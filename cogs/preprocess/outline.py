@@ -214,12 +214,13 @@ def follow(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d: np
     outline = Outline.of(mask)
     if outline is None:
         return None
-    return outline, dict(_passing(images, outline, mask, start, stop, kp2d, on_frame, carry))
+    return outline, {t: pose for t, pose, _ in _passing(images, outline, mask, start, stop, kp2d, on_frame, carry)}
 
 
 def _passing(images: np.ndarray, outline: Outline, mask: np.ndarray, start: int, stop: int, kp2d: np.ndarray | None,
              on_frame=None, carry: bool = True):
-    """``follow``'s frames one at a time: yields (frame, pose)."""
+    """``follow``'s frames one at a time: yields (frame, pose, the outline drawn under it
+    [H, W] bool, or None where it is not drawn: without keypoints, or without ``carry``)."""
     H, W = images.shape[1:3]
     hands = hand_points(kp2d)
     direction = 1 if stop >= start else -1
@@ -240,9 +241,8 @@ def _passing(images: np.ndarray, outline: Outline, mask: np.ndarray, start: int,
         pose, _ = fit(outline, images[t], pose, off)
         if on_frame:
             on_frame()
-        if carry and kp2d is not None:
-            last = outline.mask(pose, (H, W))
-        yield t, pose
+        last = outline.mask(pose, (H, W)) if carry and kp2d is not None else None  # read only where it is drawn
+        yield t, pose, last
 
 
 def bridge(images: np.ndarray, mask_a: np.ndarray, a: int, mask_b: np.ndarray, b: int, kp2d: np.ndarray,
@@ -366,12 +366,12 @@ def lone_pass(images: np.ndarray, mask: np.ndarray, start: int, stop: int, kp2d:
     n_held, holding = 0, hand is not None
     # Indices into order: the last that returns, the first that does not, the next checked.
     ok, fail, check = -1, (None if check_back else 0), 0
-    for t, pose in _passing(images, outline, mask, start, stop, kp2d, on_frame):
+    for t, pose, drawn in _passing(images, outline, mask, start, stop, kp2d, on_frame):
         poses[t] = pose
         order.append(t)
         i = len(order) - 1
-        if holding:
-            holding = holding_hand(kp2d, t, outline.mask(pose, shape), which=(hand,)) is not None
+        if holding:  # drawn: a held prompt has keypoints
+            holding = holding_hand(kp2d, t, drawn, which=(hand,)) is not None
             n_held += holding
         if fail is None and i == check:
             if back(i):

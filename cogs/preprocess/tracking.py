@@ -159,8 +159,6 @@ UNCLEAR_CONFIDENCE = 0.1
 # supervision; nothing else changes.
 CLEAR_CONFIDENCE = 0.8
 CROSS_AGREE = 0.5
-# What the object branch trusts (``ObjectConfig.min_confidence``).
-TRUSTED_CONFIDENCE = 0.2
 # A mask more than this many times its prompt's area is not the object, whatever cue found it:
 # a rigid object's outline does not triple as it turns, and the colour search already
 # refuses such a find (its GrabCut leaked). A motion cue's track can grow that way, frame
@@ -570,7 +568,8 @@ def lone_outline_frames(k: int, shapes: dict[int, np.ndarray], masks: np.ndarray
     that holds the prompt holds, and ``returning``, those whose outline returns to the
     prompt followed back, each a run from the prompt on.
 
-    The pass holds until the colour cues trust a find (``TRUSTED_CONFIDENCE``) beyond the
+    The pass holds until the colour cues trust a find (``ObjectConfig.min_confidence``: it
+    supervises the object branch) beyond the
     outline's reach (``outline.within_reach``): it has left the object, or the object has
     moved off where it went. Of the frames before that:
     - those whose find the colour cues doubt themselves (``UNCLEAR_CONFIDENCE``: its
@@ -582,10 +581,13 @@ def lone_outline_frames(k: int, shapes: dict[int, np.ndarray], masks: np.ndarray
       coloured like the person, its outline on the person) take it where it returns. A
       frame they lost elsewhere ends the pass: hidden, the object may come back turned or
       be put down, while an outline that stalled where it was still returns."""
+    from cogs.branches.object import ObjectConfig
+
+    trusted = ObjectConfig().min_confidence
     held, returning = set(held), set(returning)
     took = []
     for t in sorted(shapes, key=lambda t: abs(t - k)):
-        if conf[t] >= TRUSTED_CONFIDENCE and not within_reach(masks[t], shapes[t]):
+        if conf[t] >= trusted and not within_reach(masks[t], shapes[t]):
             break
         if conf[t] <= 0.0:
             if t not in returning or not unseen(t):
