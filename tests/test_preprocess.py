@@ -693,6 +693,34 @@ def test_a_carried_object_turned_to_other_colours_is_followed_where_it_moves(mon
     assert _iou(masks[7], gt[7]) > 0.9 and not masks[8:].any()
 
 
+def test_a_carried_object_turning_to_the_scenes_colours_keeps_the_trust_its_hand_carried_it_with(monkeypatch):
+    # Carried by its hand, the square turns: at frame 7 its right half shows a face striped
+    # in the background's blue and grey, from 8 on all of it. The motion fit follows it
+    # frame after frame, but its colours no longer resemble the prompt's (0.01 of its
+    # evidence). Carried without a break from a trusted frame, it keeps that frame's trust
+    # (never more than the fit's own), so it supervises the object; without the rule it
+    # is below the trusted threshold from 8 on.
+    from cogs.branches.object import ObjectConfig
+    from cogs.preprocess import tracking
+
+    T = 12
+    images, gt, _, person, kp = _held_object_clip(T=T, speed=9)
+    xx = np.mgrid[: images.shape[1], : images.shape[2]][1]
+    for t in range(7, T):
+        face = gt[t] & (xx >= np.nonzero(gt[t])[1].mean()) if t == 7 else gt[t]
+        images[t][face] = (40, 60, 200)
+        images[t][face & ((xx // 4) % 2 == 0)] = (140, 140, 140)
+    trusted = ObjectConfig().min_confidence
+    cues = []
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp, cues=cues)
+    for t in range(8, T):
+        assert _iou(masks[t], gt[t]) > 0.5 and cues[t] in tracking.CARRIED_TRUST_CUES, (t, cues[t])
+        assert trusted <= conf[t] <= conf[t - 1], (t, conf[t - 1], conf[t])
+    monkeypatch.setattr(tracking, "CARRIED_TRUST_CUES", ())
+    masks, conf = O.propagate_masks(images, gt[0], 0, human_probs=person, kp2d=kp)
+    assert all(_iou(masks[t], gt[t]) > 0.5 and 0 < conf[t] < trusted for t in range(8, T)), conf
+
+
 def test_a_carried_object_back_in_view_is_judged_against_the_frames_it_was_lost_in(monkeypatch):
     # Carried, out of view for three frames, during which the camera's exposure jumps by 40
     # grey levels, then back with a face in the background's colours. Against the frames

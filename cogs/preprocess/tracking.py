@@ -53,8 +53,9 @@ Otherwise the object is hidden and the frame's mask is empty. Then every run of 
 frames that ends where the object was found again is tracked back into from there. A
 convex object (a prompt mask of solidity >= 0.9: a ball, a box, a bottle) is kept to
 the pieces of its mask that fit its outline (``drop_stray_pieces``). A frame's confidence
-is the cue's, capped by how much the mask looks like the prompt (``resemblance``), and
-at 0.1 where its surroundings look like it too (``unclear``: no evidence either way) or
+is the cue's, capped by how much the mask looks like the prompt (``resemblance``) except
+where a hand carries it on from the frame before (it keeps that frame's confidence:
+``CARRIED_TRUST_CUES``), and at 0.1 where its surroundings look like it too (``unclear``: no evidence either way) or
 where it lies along a forearm (``on_forearm``: the arm holding the object), or was
 followed there by motion from such a frame (``carried_on``), or shows off the person what
 the frames that found the object elsewhere show there (``_Tracker.shows_the_scene``: the
@@ -113,6 +114,18 @@ log = logging.getLogger(__name__)
 
 # The cues that place the last extent by a motion hint and fit it rigidly (``_by_motion``).
 MOTION_CUES = ("stay", "flow", "features", "carried")
+# A find by these cues from the frame before, while a hand carries the object (two frames
+# or more), keeps the confidence of that frame where its resemblance to the prompt
+# (``_Tracker.resemblance``) would cap it lower; never above the fit's own confidence. A
+# carried box turns to faces the prompt never showed, in colours the scene has: on the
+# synthetic video (the default scene), after the pick-up, frames 28-36 were fitted at
+# 0.5-1.0 and covered the box (IoU 0.59-0.91 with the true masks), but resembled the
+# prompt at 0.10-0.18, so the object's supervision left out its whole carry; the tennis
+# racket's head at 27-30 (384 px) likewise. What drifts while carried is caught after the
+# passes as before: onto the forearm (``carried_on``), the room (``shows_the_scene``).
+# Chosen on the synthetic video at four settings and variants 10-17, and the development
+# clips at 384 px and the default size (docs/experiments/2026-12-05-g-carried-trust.md).
+CARRIED_TRUST_CUES = MOTION_CUES + ("moving",)
 # ... and of each foot: ankle, heel, toe (foot index).
 _FOOT_LANDMARKS = ((27, 29, 31), (28, 30, 32))
 _KNEES = (25, 26)  # MediaPipe's left and right knees, for the feet above
@@ -1355,13 +1368,16 @@ class _Tracker:
     # -- passes -----------------------------------------------------------------------
 
     def run(self, start: int, direction: int, masks: np.ndarray, conf: np.ndarray, cues: list, fill: bool = False, on_frame=None,
-            stop: int | None = None) -> None:
+            stop: int | None = None, carry_trust: bool = True) -> None:
         """Track from frame ``start`` (its mask known) towards ``direction`` (+1 or -1),
         writing ``masks``, ``conf`` and ``cues`` in place, up to the clip's end or frame
         ``stop`` (not included). ``fill``: only into empty frames, stopping at the first
         frame already found or where the object is lost. The passes from a prompt's frame
         share what they learn of its carrying hand (``carried_from``); the others (into a
-        gap, or back from a clear find) never start on one."""
+        gap, or back from a clear find) never start on one. ``carry_trust``: a find a hand
+        carries on from the frame before keeps that frame's confidence
+        (``CARRIED_TRUST_CUES``); off for a pass that checks another's frames
+        (``cross_check``), where trust handed on from its start is no evidence."""
         T = len(self.images)
         from_prompt = not fill and start in self.prompts
         self.colours_of_person = self.coloured_like_person(start, direction)
@@ -1425,6 +1441,10 @@ class _Tracker:
                 f.extent = drop_stray_pieces(f.extent, st.area)
                 f.visible = f.visible & f.extent
             c = min(f.confidence, self.resemblance(t, f.visible))
+            if carry_trust and f.cue in CARRIED_TRUST_CUES and st.carried >= 2 and st.t == t - direction:
+                # Carried on from the frame before: the trust it was carried with, where its
+                # colours no longer resemble the prompt's (``CARRIED_TRUST_CUES``).
+                c = min(f.confidence, max(c, conf[st.t]))
             if self.unclear(t, f.visible):
                 c = min(c, UNCLEAR_CONFIDENCE)
             masks[t], conf[t], cues[t] = f.visible, c, f.cue
@@ -2038,7 +2058,10 @@ def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found:
     follows the ball). Where it found something less clearly but more surely than the
     first pass did, the frame's confidence falls to ``UNCLEAR_CONFIDENCE``. A frame the
     second pass loses, or finds less surely than the first (a pass that starts at a
-    clear view can still fail at once), is left as it is.
+    clear view can still fail at once), is left as it is. The second pass goes by its own
+    fits: the trust a carry would hand on from its clear start is not evidence
+    (``_Tracker.run``'s ``carry_trust``; on the guitar clip at 960 px it would have made
+    frames 63-64, on the guitar, unclear).
     """
     T = len(masks)
     doubtful = (conf > 0) & (conf < CLEAR_CONFIDENCE) & np.array([f != "prompt" for f in found])
@@ -2064,7 +2087,7 @@ def cross_check(tracker: "_Tracker", masks: np.ndarray, conf: np.ndarray, found:
         c, cu = np.zeros(T), [""] * T
         m[anchor], c[anchor], cu[anchor] = masks[anchor], conf[anchor], found[anchor]
         tracker.use(origin[anchor])
-        tracker.run(anchor, -d, m, c, cu, stop=stop)
+        tracker.run(anchor, -d, m, c, cu, stop=stop, carry_trust=False)
         for u in range(a, b + 1):
             if m[u].any() and iou(m[u], masks[u]) < CROSS_AGREE:
                 if c[u] >= CLEAR_CONFIDENCE:  # the second pass sees it clearly: its mask
