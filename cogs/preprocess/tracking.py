@@ -55,11 +55,12 @@ convex object (a prompt mask of solidity >= 0.9: a ball, a box, a bottle) is kep
 the pieces of its mask that fit its outline (``drop_stray_pieces``). A frame's confidence
 is the cue's, capped by how much the mask looks like the prompt (``resemblance``) except
 where a hand carries it on from the frame before (it keeps that frame's confidence:
-``CARRIED_TRUST_CUES``), and at 0.1 where its surroundings look like it too (``unclear``: no evidence either way) or
-where it lies along a forearm (``on_forearm``: the arm holding the object), or was
-followed there by motion from such a frame (``carried_on``), or shows off the person what
-the frames that found the object elsewhere show there (``_Tracker.shows_the_scene``: the
-floor a transparent bottle was lifted off, where the track stayed).
+``CARRIED_TRUST_CUES``), and at 0.1 where its surroundings look like it too (``unclear``:
+no evidence either way) or where it lies along a forearm (``on_forearm``: the arm holding
+the object), or was followed there by motion from such a frame (``carried_on``), or shows
+off the person what the frames that found the object elsewhere show there
+(``_Tracker.shows_the_scene``: the floor a transparent bottle was lifted off, where the
+track stayed).
 
 Between two prompts, where a hand holds the object, the two prompts' outlines followed by
 the image's edges alone (``outline.bridge``) give the frames the colour cues saw less than
@@ -582,9 +583,9 @@ def lone_outline_frames(k: int, shapes: dict[int, np.ndarray], masks: np.ndarray
     prompt followed back, each a run from the prompt on.
 
     The pass holds until the colour cues trust a find (``ObjectConfig.min_confidence``: it
-    supervises the object branch) beyond the
-    outline's reach (``outline.within_reach``): it has left the object, or the object has
-    moved off where it went. Of the frames before that:
+    supervises the object branch) beyond the outline's reach (``outline.within_reach``): it
+    has left the object, or the object has moved off where it went. Of the frames before
+    that:
     - those whose find the colour cues doubt themselves (``UNCLEAR_CONFIDENCE``: its
       surroundings look like it, it lies on the arm, shows the room, or spread) take it
       where its hand holds it. Any other find is kept, seen in the frame's own colours (a
